@@ -8,6 +8,10 @@ import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: the solver is imported when the fit runs
+    from ..solver import LedCalibration
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +91,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fit LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
         "captured; by default they are fitted in the order they show, with a warning and the file's led_order",
     )
+    p.add_argument(
+        "--previous",
+        metavar="OLD_LEDS.json",
+        help="an earlier LED file of this sensor: say which LEDs or tri-colour groups changed brightness (aged, "
+        "replaced) or moved since, one warning line each, in the table and in the new file ('previous'); a file of "
+        "another sensor is refused. It may be the --out file itself (read before it is replaced)",
+    )
     p.set_defaults(func=run)
 
 
@@ -106,6 +117,14 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.out).is_dir():  # found after the fit as "OUT -> OUT: Is a directory"
         raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
+    if args.previous is not None:  # a bad file: one line before the fit
+        from ..core.errors import CaptureError
+        from ..core.ledfile import read_led_file
+
+        try:
+            args.previous_file = read_led_file(args.previous)
+        except CaptureError as exc:  # the line names the file; say which option gave it
+            raise CaptureError(f"--previous {exc}") from None
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
         if not args.allow_contact:
@@ -132,6 +151,7 @@ FIT_KEY_OPTIONS = (
     "coating_reflectance",
     "allow_contact",
     "reorder_leds",
+    "previous",
 )
 """The options of ``nlips calibrate-leds`` that decide its LED file (with the captures): runs into one --out that
 agree on them and on the captures fit the same file (:func:`_fit_held`)."""
@@ -217,6 +237,10 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     from ..solver import calibrate_leds
 
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
+    if args.previous is not None:  # another sensor's earlier file: refused before the fit, not after it
+        from ..core.led_change import check_previous_sensor
+
+        check_previous_sensor(args.previous_file, args.previous, sensor_of(presses[0]), args.presses[0])
     led_model = _led_model(args.led_diameter, presses)
     log.info(led_model["said"])
     diameter = led_model["diameter_mm"]
@@ -236,10 +260,17 @@ def _fit_and_write(args: argparse.Namespace) -> int:
         )
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     record = {k: led_model[k] for k in ("fitted", "diameter_mm", "from")}
-    save_leds(args.out, cal.leds, cal.to_json() | {"led_model": record, "sensor": sensor_of(presses[0])})
+    extra = {"led_model": record, "sensor": sensor_of(presses[0])}
+    previous = _compared(args, cal)
+    if previous is not None:
+        extra["previous"] = previous
+    save_leds(args.out, cal.leds, cal.to_json() | extra)
     print_result(args.out)  # stdout: the LED file alone (scripts); the fit's table and the next step on stderr
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
-    say(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
+    widths = (3, 7, 7, 7, 6, 6, 10, 9)
+    if previous is not None:  # each LED against the earlier file: its share of the light, and how far it moved
+        head, widths = head + ("x prev", "moved(mm)", "turned(deg)"), widths + (7, 9, 11)
+    say(" ".join(f"{h:>{w}}" for h, w in zip(head, widths)))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):
         r, g, b = led.intensity
         # an LED not fitted (its image a stale frame in every capture): its starting values, said in its warning
@@ -248,7 +279,7 @@ def _fit_and_write(args: argparse.Namespace) -> int:
             if i not in cal.not_fitted
             else "  not fitted: starting values"
         )
-        say(f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {spread}")
+        say(f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {spread}{_against_previous(previous, i)}")
     if cal.emitters:
         say(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
@@ -271,12 +302,38 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     for i, model in enumerate(cal.interreflection):
         say(f"capture {i + 1}: {model.get('reason', '')}")
     say(_fit_line(cal.quality))
+    if previous is not None:
+        said = f"{len(previous['changes'])} change(s), warned above, also in the file's 'previous'"
+        say(f"against {args.previous}: {said if previous['changes'] else 'no LED changed beyond the tolerances'}")
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
     say(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
     say(f"next: nlips solve PRESS --leds {args.out}, or nlips calibrate FOLDER --leds {args.out} (NLiPsNet's labels)")
     return 0
+
+
+def _compared(args: argparse.Namespace, cal: LedCalibration) -> dict | None:
+    """With ``--previous``: the new calibration against the earlier file
+    (:func:`nlipscalib.core.led_change.compare_calibrations`), each change warned in one line; None without it."""
+    if args.previous is None:
+        return None
+    from ..core.led_change import compare_calibrations
+
+    previous = compare_calibrations(args.previous_file, args.previous, cal.leds, cal.not_fitted)
+    for line in previous["changes"]:
+        log.warning("%s", line)
+    return previous
+
+
+def _against_previous(previous: dict | None, i: int) -> str:
+    """LED ``i``'s columns against the earlier file (brightness ratio, moved, turned); blank where not compared."""
+    if previous is None:
+        return ""
+    ratio, moved, turned = (previous[key][i] for key in ("brightness", "moved_mm", "turned_deg"))
+    if ratio != ratio:  # NaN: not fitted here or there
+        return f" {'-':>7} {'-':>9} {'-':>11}"
+    return f" {ratio:>7.3f} {moved:>9.3f} {turned:>11.2f}"
 
 
 def _led_model(given: float | None, presses: list) -> dict:

@@ -24,6 +24,8 @@ from .tolerances import MAX_LED_DISTANCE_MM, MAX_LED_INTENSITY, MAX_LED_MU, NORM
 
 TRICOLOR_COLORS = np.eye(3)
 """Colour of each tri-colour group: group 0 red, 1 green, 2 blue."""
+TRICOLOR_NAMES = ("red", "green", "blue")
+"""Name of each tri-colour group (:func:`tricolor_groups`), for warnings."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,14 +135,32 @@ def led_geometry_mismatch(
     pa, pb = np.asarray(positions_a, float), np.asarray(positions_b, float)
     if pa.shape != pb.shape:
         return f"{len(pb)} LEDs against {len(pa)}"
-    gap = np.linalg.norm(pa - pb, axis=1)
-    turn = angle_deg(directions_a, directions_b)
+    gap, turn = led_offsets(pa, directions_a, pb, directions_b)
     # written as "not within" so that an angle without a value (a zero-length direction: NaN) is a mismatch
     off = np.flatnonzero(~(gap <= tolerances.SAME_LED_MM) | ~(turn <= tolerances.SAME_LED_DEG))
     if off.size:
         i = int(off[0])
         return f"LED {i + 1} is {gap[i]:.2f} mm and {turn[i]:.1f} deg from its counterpart"
     return None
+
+
+def led_offsets(
+    positions_a: ArrayLike, directions_a: ArrayLike, positions_b: ArrayLike, directions_b: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    """How far each LED of one set lies from its counterpart in another of the same count.
+
+    Parameters
+    ----------
+    positions_a, positions_b : (L, 3) float, mm, camera frame
+    directions_a, directions_b : (L, 3) float, unit, camera frame
+
+    Returns
+    -------
+    gap : (L,) float64, mm -- distance between the positions.
+    turn : (L,) float64, degrees -- angle between the directions (NaN for a zero-length one).
+    """
+    gap = np.linalg.norm(np.asarray(positions_a, float) - np.asarray(positions_b, float), axis=1)
+    return gap, np.asarray(angle_deg(directions_a, directions_b), np.float64)
 
 
 def led_arrays(leds: Leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -738,3 +738,19 @@ RESPONSE_ADDITIVITY_POWERS = (0.5, 2.0)
 """The powers of the fitted curve tried to make the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`): times that
 are ``t ** a`` of the asked ones give a curve off by the power ``a``; a = 0.5-2 spans shutter tables from a base
 of sqrt(2) taken for 2 to 4 taken for 2. A power needed beyond them is no time table: refused."""
+LED_GROUP_CHANGE = 0.03
+"""``nlips calibrate-leds --previous OLD``: a tri-colour LED group whose median share of the light
+(:func:`nlipscalib.core.led_change.led_brightness_ratios`, relative to the median LED) strays from OLD's by more than
+this fraction is named as changed (aged together, as on one driver channel). Set from the calibration's repeatability:
+the twin's undeformed dome at 160x120, one bounce, 16 spp, seven noise seeds (21 pairs of calibrations): group medians
+within 0.25 % (median), 0.9 % (95th percentile), 1.9 % at worst; a group aged to 0.90 reads 0.890-0.914, to 0.95
+0.945-0.964 against the seven (4 % missed the 0.964) (benchmarks/RESULTS.md, s32-ledaged)."""
+LED_BRIGHTNESS_CHANGE = 0.07
+"""... and an LED whose share over its group's median strays by more than this fraction is named on its own (the same
+21 pairs: 0.4 % median, 1.7 % 95th percentile, 4.2 % at worst)."""
+LED_MOVED_MM = 0.6
+"""... and an LED whose calibrated position lies farther than this (mm) from OLD's is named as moved (the same 21
+pairs: 0.09 mm median, 0.24 95th percentile, 0.43 at worst; a larger capture repeats closer)."""
+LED_TURNED_DEG = 4.0
+"""... or whose axis turned by more than this (degrees) (the same pairs: 0.57 deg median, 1.76 95th percentile, 2.64
+at worst)."""

@@ -21,7 +21,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError
-from ..core.leds import Led, led_shading, tricolor_groups
+from ..core.leds import TRICOLOR_NAMES, Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
     LaggedBand,
@@ -828,8 +828,8 @@ def _rescaled(names: Sequence[str], gains: np.ndarray) -> str:
     )
 
 
-GROUP_NAMES = ("red", "green", "blue")
-"""The tri-colour groups' names (:func:`~nlipscalib.core.leds.tricolor_groups`), for warnings."""
+GROUP_NAMES = TRICOLOR_NAMES
+"""The tri-colour groups' names (:data:`nlipscalib.core.leds.TRICOLOR_NAMES`), for warnings."""
 
 
 def model_led_gains(relative: np.ndarray, groups: np.ndarray) -> np.ndarray | None:

@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
+import pytest
+
 from nlipscalib.cli import main
 from tests.solver import synth
 
@@ -54,3 +57,89 @@ def test_solving_with_an_led_file_that_holds_a_not_fitted_led_says_so_once(tmp_p
         f"{leds}: LED 5 not fitted by its calibration (kept at the starting values); capture the undeformed dome "
         "again and re-run `nlips calibrate-leds` to calibrate it"
     ]
+
+
+@pytest.fixture(scope="module")
+def twin_captures(tmp_path_factory):
+    """Undeformed captures of the twin (160x120, one bounce, 16 spp, sensor noise) under three noise seeds, the
+    second's copy with the red tri-colour group (LEDs 1-4) aged to 0.9, and the first's LED file: (folder, file)."""
+    pytest.importorskip("mitsuba")
+    from nlipscalib.core import load_press
+    from nlipscalib.sim.press import render_press
+    from nlipscalib.sim.scene import load_scene
+    from tests.solver.twin_helpers import dimmed_copy
+
+    root = tmp_path_factory.mktemp("previous")
+    scene = load_scene("nlipstac").replace(render={"bounces": 1, "spp": 16}, camera={"width": 160, "height": 120})
+    for seed in (7, 8, 9):
+        render_press(scene, None, root / f"seed{seed}", seed=seed)
+    dimmed_copy(load_press(root / "seed8"), root / "seed8_aged", np.where(np.arange(12) < 4, 0.9, 1.0))
+    first = root / "seed7.json"
+    assert main(["--no-progress", "calibrate-leds", str(root / "seed7"), "--out", str(first)]) == 0
+    return root, first
+
+
+def _calibrated_against(capture, previous, out, caplog):
+    """`nlips calibrate-leds CAPTURE --previous PREVIOUS --out OUT` (exit 0): its warnings and the written file."""
+    caplog.clear()
+    assert main(["--no-progress", "calibrate-leds", str(capture), "--out", str(out), "--previous", str(previous)]) == 0
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    return warnings, json.loads(out.read_text())
+
+
+def test_an_aged_led_group_is_named_against_the_previous_calibration(twin_captures, tmp_path, capsys, caplog):
+    """LEDs 1-4 aged to 0.9 since the earlier calibration (another noise seed of the same dome): the calibration
+    measured the group (0.90 of the others) and said nothing, taking no earlier file. With --previous one warning
+    names the group, the table gives each LED's ratio, and the file records the comparison."""
+    root, first = twin_captures
+    warnings, written = _calibrated_against(root / "seed8_aged", first, tmp_path / "aged.json", caplog)
+    (change,) = written["previous"]["changes"]
+    assert warnings == [change]
+    assert change.startswith("LEDs 1-4 (the red tri-colour group) give 0.9") and str(first) in change, change
+    ratio = np.asarray(written["previous"]["brightness"])
+    assert np.allclose(ratio[:4], 0.9, atol=0.03) and np.allclose(ratio[4:], 1.0, atol=0.03), ratio
+    assert written["previous"]["file"] == str(first)
+    rows = [line.split() for line in capsys.readouterr().err.splitlines()]
+    header = next(row for row in rows if row[:1] == ["LED"])
+    assert header[-3:] == ["prev", "moved(mm)", "turned(deg)"]
+    led1 = next(row for row in rows if row[:1] == ["1"] and row[1] != "centre")  # not LED 1's disk
+    assert len(led1) == 11  # LED, 3 Psi, mu, 3 uncertainties and the 3 columns against the earlier file
+    assert abs(float(led1[-3]) - 0.9) < 0.03
+
+
+def test_clean_captures_against_an_earlier_calibration_raise_no_alarm(twin_captures, tmp_path, caplog):
+    """The same sensor, unchanged, under other noise seeds: no LED nor group beyond the tolerances (set from the
+    calibration's repeatability), nothing warned; the comparison is still recorded. The earlier file may be the one
+    --out replaces (a lab's leds.json, calibrated again in place)."""
+    root, first = twin_captures
+    replaced = tmp_path / "leds.json"  # --previous the very file --out replaces: read before the fit
+    replaced.write_bytes(first.read_bytes())
+    for seed, out, previous in ((8, tmp_path / "8.json", first), (9, replaced, replaced)):
+        warnings, written = _calibrated_against(root / f"seed{seed}", previous, out, caplog)
+        assert warnings == [] and written["previous"]["changes"] == [], warnings
+        assert written["previous"]["file"] == str(previous)
+        assert np.nanmax(np.abs(np.log(written["previous"]["brightness"]))) < 0.04
+    assert json.loads(replaced.read_text())["leds"] != json.loads(first.read_text())["leds"]  # seed 9's, replaced
+
+
+def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_captures, tmp_path, capsys, monkeypatch):
+    """--previous with another sensor's LED file (a 48x36 camera), one that records no sensor, or none at all: one
+    line naming the option and the file, exit 2, before the fit, nothing written."""
+    from nlipscalib import solver
+
+    root, first = twin_captures
+    other = tmp_path / "other.json"
+    small = synth.make_press(tmp_path / "small", "none", size=(48, 36))
+    assert main(["--no-progress", "calibrate-leds", str(small), "--out", str(other), "--stride", "2"]) == 0
+    unrecorded = tmp_path / "unrecorded.json"
+    unrecorded.write_text(json.dumps({k: v for k, v in json.loads(first.read_text()).items() if k != "sensor"}))
+    monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
+    capsys.readouterr()
+    refusals = [(other, "calibrated on another sensor"), (unrecorded, "records no sensor")]
+    for previous, why in refusals + [(tmp_path / "gone.json", "no such LED file")]:
+        out = tmp_path / "new.json"
+        args = ["--no-progress", "calibrate-leds", str(root / "seed8"), "--out", str(out), "--previous", str(previous)]
+        assert main(args) == 2
+        lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert len(lines) == 1 and f"--previous {previous}: {why}" in lines[0], lines
+        assert not out.exists()

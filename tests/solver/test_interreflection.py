@@ -6,16 +6,12 @@ model, so these tests render the ideal scene (``nlipstac_ideal``: point LEDs, id
 scene's extended LEDs the fit sees a 0.85 reflectance and a 1.4 % share in a bounce-0 capture.
 """
 
-import json
-import shutil
-
 import numpy as np
 import pytest
 
 pytest.importorskip("mitsuba")
 
 from nlipscalib.core import load_press  # noqa: E402
-from nlipscalib.core.imageio import read_png16, write_png16  # noqa: E402
 from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
@@ -24,7 +20,7 @@ from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import SolverOptions, solve_press  # noqa: E402
 from nlipscalib.solver.indirect import fit_indirect  # noqa: E402
 
-from .twin_helpers import contact_box, perturbed  # noqa: E402
+from .twin_helpers import contact_box, dimmed_copy, perturbed  # noqa: E402
 
 SPHERE = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)
 
@@ -460,19 +456,6 @@ def test_the_gathers_filled_albedo_is_the_whole_frames_on_one_thread_and_on_two(
         threads.set_workers(before)
 
 
-def _dimmed(press, folder, gain):
-    """A copy of ``press`` in ``folder`` with every LED image ``gain`` times as bright above the dark frame (LEDs
-    aged alike, or a shorter exposure; one gain per LED: LEDs aged each on its own), as a press captured so would
-    store it."""
-    shutil.copytree(press.folder, folder)
-    images = json.loads((folder / "meta.json").read_text(encoding="utf-8"))["images"]
-    dark = read_png16(folder / images["dark"]).astype(float)
-    for name, led_gain in zip(images["leds"], np.broadcast_to(gain, len(images["leds"])), strict=True):
-        lit = read_png16(folder / name).astype(float) - dark
-        write_png16(folder / name, np.clip(np.rint(dark + led_gain * lit), 0, 65535).astype(np.uint16))
-    return load_press(folder)
-
-
 def test_a_press_with_every_led_dimmer_than_the_undeformed_capture_solves_as_captured(bounce1, tmp_path):
     """Every LED 10 % dimmer than at the undeformed capture (aged LEDs): the albedo takes the scale, but the
     indirect term fitted on that capture kept its brightness. Whole frame, before the gain: gel AAE 0.53 -> 3.1
@@ -480,7 +463,7 @@ def test_a_press_with_every_led_dimmer_than_the_undeformed_capture_solves_as_cap
     report), the depth is the as-captured press's, and the warning names LED ageing and the remedy."""
     flat, press = bounce1
     as_captured = solve_press(press, indirect=flat)
-    dimmed = _dimmed(press, tmp_path / "dimmed", 0.9)
+    dimmed = dimmed_copy(press, tmp_path / "dimmed", 0.9)
     aged = solve_press(dimmed, indirect=flat)
     gain = np.asarray(aged.report["reference_gain"])
     assert np.allclose(gain, 0.9, atol=0.005), gain
@@ -502,7 +485,7 @@ def test_a_press_with_one_led_group_dimmer_than_the_undeformed_capture_solves_as
     flat, press = bounce1
     as_captured = solve_press(press, indirect=flat)
     group = np.where(np.arange(len(press.leds)) < 4, 0.9, 1.0)
-    red_aged = _dimmed(press, tmp_path / "red_aged", group)
+    red_aged = dimmed_copy(press, tmp_path / "red_aged", group)
     aged = solve_press(red_aged, indirect=flat)
     gains = np.median(aged.report["led_gains"], axis=1)
     assert np.allclose(gains, group, atol=0.01), gains

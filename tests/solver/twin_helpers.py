@@ -1,12 +1,16 @@
 """Helpers of the tests and benchmarks on the digital twin's renders (tests/solver/test_twin.py,
 test_interreflection.py, benchmarks/bench_accuracy.py): LEDs off as a calibration starts from them, and a box
-around the true contact."""
+around the true contact, and a capture whose LEDs aged."""
 
 from __future__ import annotations
 
+import json
+import shutil
+
 import numpy as np
 
-from nlipscalib.core import Led
+from nlipscalib.core import Led, load_press
+from nlipscalib.core.imageio import read_png16, write_png16
 
 
 def perturbed(leds, rng, mm=(0.3, 0.5), deg=5.0):
@@ -38,3 +42,16 @@ def contact_box(contact, margin=8):
     y0, x0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
     y1, x1 = min(rows.max() + 1 + margin, contact.shape[0]), min(cols.max() + 1 + margin, contact.shape[1])
     return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+
+
+def dimmed_copy(press, folder, gain):
+    """A copy of ``press`` in ``folder`` with every LED image ``gain`` times as bright above the dark frame (LEDs
+    aged alike, or a shorter exposure; one gain per LED: LEDs aged each on its own), as a press captured so would
+    store it."""
+    shutil.copytree(press.folder, folder)
+    images = json.loads((folder / "meta.json").read_text(encoding="utf-8"))["images"]
+    dark = read_png16(folder / images["dark"]).astype(float)
+    for name, led_gain in zip(images["leds"], np.broadcast_to(gain, len(images["leds"])), strict=True):
+        lit = read_png16(folder / name).astype(float) - dark
+        write_png16(folder / name, np.clip(np.rint(dark + led_gain * lit), 0, 65535).astype(np.uint16))
+    return load_press(folder)
