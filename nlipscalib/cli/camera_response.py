@@ -616,7 +616,7 @@ def _pinned(
                 f"{source}: no {PAIRS_FOLDER}/ subfolder of LEDs lit apart and together, so the curve's power is "
                 "not checked (exposure times a power of those named would bend it unseen): add "
                 f"{Path(bracket) / PAIRS_FOLDER}/ with dark.png, led_1.png, led_2.png, led_1+2.png (more pairs "
-                "alike) at one exposure (docs/formats.md, Camera response file)",
+                "alike) at one exposure (docs/formats.md, Camera response file, in the nlipscalib source distribution)",
                 file=sys.stderr,
             )
         return fit, None

@@ -31,9 +31,12 @@ def test_a_stale_led_frame_is_left_out_and_its_led_kept_at_its_start_in_the_tabl
     (warning,) = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert "led_05.png repeats led_04.png" in warning and "LED 5 not fitted" in warning, warning
     assert any(line.split()[:1] == ["5"] and line.endswith("not fitted: starting values") for line in err.splitlines())
-    written = json.loads(out.read_text())
+    written = json.loads(out.read_text(encoding="utf-8"))
     assert written["not_fitted"] == [4] and written["warnings"] == [warning]
-    assert written["leds"][4]["position"] == json.loads((folder / "meta.json").read_text())["leds"][4]["position"]
+    assert (
+        written["leds"][4]["position"]
+        == json.loads((folder / "meta.json").read_text(encoding="utf-8"))["leds"][4]["position"]
+    )
     assert math.isnan(written["rms"][4]) and not math.isnan(written["rms"][3])
 
 
@@ -84,7 +87,7 @@ def _calibrated_against(capture, previous, out, caplog):
     caplog.clear()
     assert main(["--no-progress", "calibrate-leds", str(capture), "--out", str(out), "--previous", str(previous)]) == 0
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-    return warnings, json.loads(out.read_text())
+    return warnings, json.loads(out.read_text(encoding="utf-8"))
 
 
 def test_an_aged_led_group_is_named_against_the_previous_calibration(twin_captures, tmp_path, capsys, caplog):
@@ -119,7 +122,10 @@ def test_clean_captures_against_an_earlier_calibration_raise_no_alarm(twin_captu
         assert warnings == [] and written["previous"]["changes"] == [], warnings
         assert written["previous"]["file"] == str(previous)
         assert np.nanmax(np.abs(np.log(written["previous"]["brightness"]))) < 0.04
-    assert json.loads(replaced.read_text())["leds"] != json.loads(first.read_text())["leds"]  # seed 9's, replaced
+    assert (
+        json.loads(replaced.read_text(encoding="utf-8"))["leds"]
+        != json.loads(first.read_text(encoding="utf-8"))["leds"]
+    )  # seed 9's, replaced
 
 
 def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_captures, tmp_path, capsys, monkeypatch):
@@ -132,7 +138,10 @@ def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_ca
     small = synth.make_press(tmp_path / "small", "none", size=(48, 36))
     assert main(["--no-progress", "calibrate-leds", str(small), "--out", str(other), "--stride", "2"]) == 0
     unrecorded = tmp_path / "unrecorded.json"
-    unrecorded.write_text(json.dumps({k: v for k, v in json.loads(first.read_text()).items() if k != "sensor"}))
+    unrecorded.write_text(
+        json.dumps({k: v for k, v in json.loads(first.read_text(encoding="utf-8")).items() if k != "sensor"}),
+        encoding="utf-8",
+    )
     monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
     capsys.readouterr()
     refusals = [(other, "calibrated on another sensor"), (unrecorded, "records no sensor")]
