@@ -14,31 +14,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 
-
-def _camera(power: float, droop: float):
-    """The emulated camera taking ``0.5 (t / 0.5) ** power`` ms when asked t, seeing LEDs lit together at ``droop``."""
-    from nlipscalib import emulator
-
-    class Camera(emulator.EmulatedCamera):
-        def __init__(self, renders, latched, *args, **kwargs):
-            def sagging():
-                colours = np.asarray(latched(), dtype=np.float32)
-                return colours * np.float32(droop) if colours.any(axis=1).sum() > 1 else colours
-
-            super().__init__(renders, sagging, *args, **kwargs)
-
-        @property
-        def exposure_scale(self) -> float:
-            return self._scale
-
-        @exposure_scale.setter
-        def exposure_scale(self, value: float) -> None:
-            self._scale = 0.05 * (value / 0.05) ** power
-
-    return Camera
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.device.fakes: the skewed emulated camera
 
 
 def _run(size: tuple[int, int, int], curve: str, seed: int) -> dict:
@@ -76,6 +57,7 @@ def _run(size: tuple[int, int, int], curve: str, seed: int) -> dict:
 
 def main() -> None:
     from nlipscalib import emulator
+    from tests.device.fakes import skewed_emulated_camera
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=5)
@@ -87,7 +69,7 @@ def main() -> None:
     real = emulator.EmulatedCamera
     for case in args.cases.split(";"):
         power, droop = (float(v) for v in case.split(","))
-        emulator.EmulatedCamera = _camera(power, droop)
+        emulator.EmulatedCamera = skewed_emulated_camera(power, droop)
         for curve in args.curves.split(","):
             for seed in range(args.seeds):
                 rec = {"power_of_times": power, "droop": droop, "curve": curve, "seed": seed, **_run(size, curve, seed)}

@@ -199,3 +199,28 @@ def hello_then(other, payload: str = "fw=1.0.0 proto=1 leds=12 sid=0001"):
         return other(seq)
 
     return respond
+
+
+def skewed_emulated_camera(power: float = 1.0, droop: float = 1.0):
+    """The emulator's camera class made to take ``0.5 (t / 0.5) ** power`` ms when asked ``t`` (a shutter table of
+    another log base), and to see LEDs lit together at ``droop`` times their drive (a shared supply that sags): what
+    the camera-response checks must catch (tests/device/test_response_fit.py, benchmarks/bench_response_gap.py)."""
+    from nlipscalib import emulator
+
+    class Camera(emulator.EmulatedCamera):
+        def __init__(self, renders, latched, *args, **kwargs):
+            def sagging():
+                colours = np.asarray(latched(), dtype=np.float32)
+                return colours * np.float32(droop) if colours.any(axis=1).sum() > 1 else colours
+
+            super().__init__(renders, sagging, *args, **kwargs)
+
+        @property
+        def exposure_scale(self) -> float:
+            return self._scale
+
+        @exposure_scale.setter
+        def exposure_scale(self, value: float) -> None:
+            self._scale = 0.05 * (value / 0.05) ** power  # 10 ms is scale 1: 0.5 ms, 0.05, is where the two agree
+
+    return Camera

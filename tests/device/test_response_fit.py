@@ -226,27 +226,12 @@ def test_the_emulated_tone_curves_are_the_commands_choices():
 
 
 def _emulated_camera(monkeypatch, power: float = 1.0, droop: float = 1.0) -> None:
-    """The emulated camera made to take ``0.5 (t / 0.5) ** power`` ms when asked ``t`` (a shutter table of another
-    log base), and to see LEDs lit together at ``droop`` times their drive (a shared supply that sags)."""
+    """The emulated camera made to take ``0.5 (t / 0.5) ** power`` ms when asked ``t`` and to see LEDs lit together
+    at ``droop`` times their drive (:func:`tests.device.fakes.skewed_emulated_camera`)."""
     from nlipscalib import emulator
+    from tests.device.fakes import skewed_emulated_camera
 
-    class Camera(emulator.EmulatedCamera):
-        def __init__(self, renders, latched, *args, **kwargs):
-            def sagging():
-                colours = np.asarray(latched(), dtype=np.float32)
-                return colours * np.float32(droop) if colours.any(axis=1).sum() > 1 else colours
-
-            super().__init__(renders, sagging, *args, **kwargs)
-
-        @property
-        def exposure_scale(self) -> float:
-            return self._scale
-
-        @exposure_scale.setter
-        def exposure_scale(self, value: float) -> None:
-            self._scale = 0.05 * (value / 0.05) ** power  # 10 ms is scale 1: 0.5 ms, 0.05, is where the two agree
-
-    monkeypatch.setattr(emulator, "EmulatedCamera", Camera)
+    monkeypatch.setattr(emulator, "EmulatedCamera", skewed_emulated_camera(power, droop))
 
 
 def test_leds_dimmed_two_percent_together_are_refused_not_taken_for_a_power(monkeypatch, tmp_path, capsys):
