@@ -110,3 +110,33 @@ def test_nlips_solve_maps_its_memory_ahead_in_its_own_process_only(tmp_path, mon
     monkeypatch.setattr(pages, "populate_heap_ahead", lambda nbytes: started.append(populate(nbytes) is not None))
     assert main(["--no-progress", "solve", str(press), "--no-figures", "--overwrite"]) == 0
     assert started == [False]  # asked, and nothing mapped: the allocator's settings are the command's alone
+
+
+NUMPY_IMPORT_SEES = (
+    "import os, sys\n"
+    "class Spy:\n"
+    "    def find_spec(self, name, path=None, target=None):\n"
+    "        if name == 'numpy':\n"
+    "            print('at numpy import:', os.environ.get('OPENBLAS_THREAD_TIMEOUT'), flush=True)\n"
+    "            sys.meta_path.remove(self)\n"
+    "sys.meta_path.insert(0, Spy())\n"
+    "sys.argv = ['nlips', 'solve', '--help']\n"
+    "from nlipscalib.__main__ import command\n"
+    "command()\n"
+)
+
+
+@pytest.mark.parametrize(("users", "loaded_with"), [(None, "4"), ("20", "20")])
+def test_the_command_loads_openblas_with_idle_threads_that_sleep_at_once_unless_the_user_set_it(users, loaded_with):
+    """OpenBLAS reads ``OPENBLAS_THREAD_TIMEOUT`` once, when NumPy loads it: the command sets it before that import
+    (its idle helper threads spun 0.03-0.04 s of CPU each per process, s32-threads), and keeps a user's own value."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_THREAD_TIMEOUT"}
+    if users is not None:
+        env["OPENBLAS_THREAD_TIMEOUT"] = users
+    run = subprocess.run(
+        [sys.executable, "-c", NUMPY_IMPORT_SEES], capture_output=True, text=True, cwd=ROOT, env=env, timeout=120
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[0] == f"at numpy import: {loaded_with}"
