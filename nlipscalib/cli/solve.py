@@ -111,6 +111,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="solve LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
         "captured; by default they are solved in the order they show, with a warning and report.json's led_order",
     )
+    p.add_argument(
+        "--led-model",
+        choices=("points", "disks"),
+        default="points",
+        help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
+        "disks: 7x the model's cost; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
+        "where points misplace the whole gel's depth by up to 0.1 mm)",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
@@ -202,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
         "options": options,
         "backend": args.backend,
         "solver_keywords": {k: getattr(args, k) for k in SOLVER_KEYWORDS if hasattr(args, k)},
+        "led_model": args.led_model,
     }
     progress = not args.no_progress
     if len(presses) == 1:  # one press: its errors are the command's (one line, exit 2)

@@ -47,6 +47,11 @@ class LedFile(NamedTuple):
     not_fitted: tuple[int, ...] = ()
     """The LEDs (0-based) the calibration could not fit and kept at their starting values (the file's
     ``not_fitted``: their image was a stale copy in every capture); empty when all were fitted."""
+    emitters: tuple[Led, ...] = ()
+    """The same LEDs fitted as disks (the file's ``emitters``: centres, axes, profiles), for a solve that models
+    them so (``nlips solve --led-model disks``); empty when the calibration fitted none."""
+    emitter_radius: float = 0.0
+    """mm: the disks' radius (``emitters.radius_mm``); 0 without emitters."""
 
 
 def read_led_file(path: str | Path) -> LedFile:
@@ -59,6 +64,11 @@ def read_led_file(path: str | Path) -> LedFile:
         if not isinstance(data.get("leds"), list):
             raise ValueError(f"'leds' must be a list of LEDs, got {data.get('leds')!r}")
         leds = tuple(Led.from_dict(d) for d in data["leds"])
+        disks = data.get("emitters") or {}
+        emitters = tuple(Led.from_dict(d) for d in disks.get("leds", ()))
+        radius = float(disks.get("radius_mm", 0.0)) if emitters else 0.0
+        if emitters and (len(emitters) != len(leds) or not radius > 0):
+            raise ValueError(f"'emitters' must hold {len(leds)} LEDs and a radius_mm > 0")
     except FileNotFoundError:
         raise CaptureError(f"{path}: no such LED file") from None
     except IsADirectoryError:
@@ -70,7 +80,11 @@ def read_led_file(path: str | Path) -> LedFile:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
     sensor = data.get("sensor")
     return LedFile(
-        leds, None if sensor is None else check_sensor_record(sensor, path), _not_fitted(data, path, len(leds))
+        leds,
+        None if sensor is None else check_sensor_record(sensor, path),
+        _not_fitted(data, path, len(leds)),
+        emitters,
+        radius,
     )
 
 

@@ -357,6 +357,24 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
     return (mean[:, :, None] * psi[:, None, :]).reshape((len(pos),) + points.shape)
 
 
+def disk_points(positions: np.ndarray, directions: np.ndarray, radius: float) -> np.ndarray:
+    """The quadrature points of each LED's emitting disk (:func:`disk_shading`'s rule, weights
+    :data:`DISK_RULE_WEIGHTS`): the NLiPs solver's disk LEDs shade as those points' weighted mean.
+
+    Parameters
+    ----------
+    positions, directions : (L, 3) float -- the disks' centres (mm) and unit axes, camera frame (:func:`led_arrays`).
+    radius : float, mm, > 0.
+
+    Returns
+    -------
+    (L, 7, 3) float64, mm, camera frame.
+    """
+    if not radius > 0:
+        raise ConfigError(f"LED disk radius must be > 0 mm, got {radius}")
+    return np.stack([_disk_points(p, d, radius) for p, d in zip(positions, directions)]).reshape(-1, 7, 3)
+
+
 def _disk_points(centre: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
     """(7, 3) float64, mm -- the quadrature points (:data:`DISK_RULE_POINTS`) of the disk of ``radius`` centred on
     ``centre`` and perpendicular to the unit ``axis``."""

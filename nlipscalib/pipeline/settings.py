@@ -70,8 +70,12 @@ def make_settings(
     options: SolverOptions | None = None,
     backend: str = "numpy",
     solver_keywords: dict | None = None,
+    led_model: str = "points",
 ) -> SolveSettings:
-    """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`."""
+    """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`.
+
+    ``led_model`` "disks": the LED file's fitted disk emitters and their radius are solve_press's ``emitters`` and
+    ``led_radius`` (recorded in ``solver_keywords``); its point LEDs stay ``leds``."""
     from ..solver import SolverOptions
 
     if options is None:
@@ -81,6 +85,11 @@ def make_settings(
     if backend not in ("numpy", "torch"):
         raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
+    if led_model not in ("points", "disks"):
+        raise ConfigError(f"led_model must be 'points' or 'disks', got {led_model!r}")
+    if led_model == "disks":  # the file's points stay the contact map's and indirect term's LEDs
+        emitters, radius = _disk_leds(leds_file)
+        solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
     return SolveSettings(
         roi=_resolve_roi(roi),
@@ -315,6 +324,22 @@ def _resolve_leds(
     raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
 
 
+def _disk_leds(leds_file: str | None) -> tuple[tuple[Led, ...], float]:
+    """The disk emitters of an LED file and their radius (mm), for ``led_model="disks"``; ConfigError naming the
+    file (or the missing file) when there are none."""
+    from ..core.ledfile import read_led_file
+
+    if leds_file is None:
+        raise ConfigError("--led-model disks needs --leds FILE, an LED file from `nlips calibrate-leds` (its disks)")
+    led_file = read_led_file(leds_file)
+    if not led_file.emitters:
+        raise ConfigError(
+            f"{leds_file}: no disk LEDs fitted (`nlips calibrate-leds` fits them when the capture records its LEDs' "
+            "size, or with --led-diameter MM): calibrate again so, or solve with --led-model points"
+        )
+    return led_file.emitters, led_file.emitter_radius
+
+
 def _warn_not_fitted(path: Path, held: tuple[int, ...]) -> None:
     """Say (once per command) that an LED file's not-fitted LEDs shade with their starting values only: a user
     solving with the file would otherwise take every LED for a calibrated one."""
@@ -352,4 +377,8 @@ def _solver_keywords(given: dict | None) -> dict:
         raise ConfigError(f"unknown solver keywords {unknown}; solve_press accepts {sorted(params)}")
     keywords = params | dict(given or {})
     check_modes(*(keywords[k] for k in ("interreflection", "bounces", "outer_relaxation", "coating_albedo")))
+    if keywords["led_radius"] == 0.0:  # point LEDs, as before s32: not recorded, so earlier results keep their keys
+        del keywords["led_radius"], keywords["emitters"]
+    elif keywords["emitters"] is not None:  # recorded as the LED file holds them (JSON)
+        keywords["emitters"] = tuple(e if isinstance(e, dict) else e.to_dict() for e in keywords["emitters"])
     return keywords

@@ -50,6 +50,7 @@ def solve_folder(
     out: str | Path | None = None,
     solver_keywords: dict | None = None,
     announce_reuse: bool = True,
+    led_model: str = "points",
 ) -> tuple[Reconstruction | None, str]:
     """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
 
@@ -69,7 +70,13 @@ def solve_folder(
     ``out`` (its result is never replaced while it runs; see :func:`solve_presses`).
     """
     settings = make_settings(
-        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+        reference=reference,
+        roi=roi,
+        leds=leds,
+        options=options,
+        backend=backend,
+        solver_keywords=solver_keywords,
+        led_model=led_model,
     )
     return solve_one(
         Path(folder),
@@ -97,6 +104,7 @@ def solve_presses(
     figures: bool | str = True,
     solver_keywords: dict | None = None,
     wait: bool = False,
+    led_model: str = "points",
 ) -> dict[str, str]:
     """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
 
@@ -115,6 +123,8 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
+    led_model : "points" (the LED file's point LEDs) or "disks" (its fitted disk emitters, solved as disks:
+        a view that sees the gel beside the LEDs, e.g. down to the dome's base; ``nlips solve --led-model``)
     wait : a press another live process of these settings is solving is waited for at once (then its result
         is reused, or the press solved here when that process failed); without it such presses are left to
         that process first and waited for once this run's other presses are done (two runs of one settings on
@@ -138,7 +148,13 @@ def solve_presses(
     from ..report import figure_level
 
     settings = make_settings(
-        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+        reference=reference,
+        roi=roi,
+        leds=leds,
+        options=options,
+        backend=backend,
+        solver_keywords=solver_keywords,
+        led_model=led_model,
     )
     figure_level(figures)
     folders = [Path(f) for f in folders]

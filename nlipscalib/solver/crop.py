@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.leds import Leds, led_arrays
+from ..core.leds import Leds, disk_points, led_arrays
 from ..core.reconstruction import Reconstruction as SolveResult  # the name nlips.py gives it
 from .options import SolverOptions
 from .pyramid import checked_prior_weights
@@ -44,7 +44,8 @@ class LevelData:
     w0: np.ndarray
     """(h, w) float -- the prior weights' multipliers."""
     leds: tuple
-    """(positions, directions, mu, psi) of the LEDs kept (:func:`nlipscalib.core.leds.led_arrays`)."""
+    """(positions, directions, mu, psi) of the LEDs kept (:func:`nlipscalib.core.leds.led_arrays`); of disk LEDs the
+    positions (L, 7, 3) are their disks' quadrature points (:func:`nlipscalib.core.leds.disk_points`)."""
     kept: list
     """0-based indices of the LEDs kept."""
     usable_leds: np.ndarray
@@ -65,6 +66,7 @@ class LevelData:
         prior_weights: np.ndarray | None,
         leds: Leds,
         opts: SolverOptions,
+        led_radius: float = 0.0,
     ) -> LevelData:
         whole = images
         H, W = mask.shape
@@ -83,6 +85,8 @@ class LevelData:
         kept = [i for i in range(len(leds)) if i not in report["dead_leds"]]
         every = len(kept) == len(leds)  # then no copy of the images and samples
         pos, dirs, mu, psi = led_arrays(leds)
+        if led_radius > 0:  # disks: the kernel shades their quadrature points
+            pos = disk_points(pos, dirs, led_radius)
         return cls(
             images=images if every else images[kept],
             usable=use if every else use[kept],

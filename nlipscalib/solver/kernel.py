@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
+from ..core.leds import DISK_RULE_WEIGHTS
 from . import robust
 
 if TYPE_CHECKING:  # torch is optional and slow to import: named for the type checker only
@@ -94,8 +95,21 @@ class Model:
         usable: np.ndarray,
     ):
         """q, A, B, C : (N, 3); positions, directions : (L, 3); mu : (L,); psi : (L, 3);
-        images, usable : (L, 3, N) (usable as 0/1)."""
+        images, usable : (L, 3, N) (usable as 0/1).
+
+        ``positions`` (L, 7, 3) instead: LEDs that emit from disks, given by their quadrature points
+        (:func:`nlipscalib.core.leds.disk_points`); each LED's shading is then the weighted mean of its points'
+        (:data:`nlipscalib.core.leds.DISK_RULE_WEIGHTS`), the model of :func:`nlipscalib.core.leds.disk_shading`."""
         self.be = be
+        self.disk_weights = None
+        if positions.ndim == 3:  # each point of a disk shades as a point LED of the disk's axis and profile
+            n_leds, n_points = positions.shape[:2]
+            positions = positions.reshape(-1, 3)
+            directions = np.repeat(directions, n_points, axis=0)
+            mu = np.repeat(mu, n_points)
+            weights = np.tile(DISK_RULE_WEIGHTS, n_leds)[:, None].astype(np.asarray(images).dtype)
+            self.disk_weights = be.asarray(weights)
+            self.n_leds = n_leds
         self.q = [be.asarray(q[:, k]) for k in range(3)]
         self.A = [be.asarray(A[:, k]) for k in range(3)]
         self.B = [be.asarray(B[:, k]) for k in range(3)]
@@ -115,7 +129,22 @@ class Model:
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
-        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit).
+        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit); of disk LEDs the
+        weighted means of their points' (each point lit or not on its own)."""
+        out = self._point_shading(t, tu, tv, derivatives)
+        if self.disk_weights is None:
+            return out
+
+        def mean(a: Array) -> Array:
+            a = a * self.disk_weights
+            return a.reshape(self.n_leds, -1, a.shape[-1]).sum(1)
+
+        return mean(out) if not derivatives else tuple(mean(a) for a in out)
+
+    def _point_shading(
+        self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
+    ) -> Array | tuple[Array, Array, Array, Array]:
+        """:meth:`shading` of point LEDs (one per row of ``self.pos``).
 
         Written with in-place operations in the order of the formulas' plain expressions (the same bits): an
         (L, N) temporary is a pass over memory, and the fewer of them, the more of a chunk stays in cache."""

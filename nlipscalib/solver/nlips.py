@@ -87,6 +87,7 @@ def solve(
     init_depth: np.ndarray | None = None,
     unrefined: int = 0,
     where: str | Path | None = None,
+    led_radius: float = 0.0,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -120,12 +121,19 @@ def solve(
         on patches several pixels wide, needs no more. The coarsest level is always iterated. From the prior (no
         ``init_depth``) its levels stop at ``options.seed_energy_rtol`` instead of ``options.energy_rtol``.
     where : what the warnings name first (the press folder, so that a batch's lines say which press); None: nothing.
+    led_radius : float, mm -- > 0: the LEDs emit from disks of this radius centred on their positions, perpendicular
+        to their axes (:func:`nlipscalib.core.leds.disk_shading`'s model, e.g. ``calibrate-leds``' fitted
+        ``emitters``); 0: point LEDs. Why: where the gel comes within a few LED sizes of an LED (a view that sees the
+        dome down to its base) the point model misses a disk's light by up to 8 %, and the whole gel's depth took a
+        0.09 mm bump from it (benchmarks/RESULTS.md, s32-rimdepth). Costs about 7x the model's shading.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
+    if not (np.isfinite(led_radius) and led_radius >= 0):
+        raise ConfigError(f"led_radius must be a finite radius >= 0 mm, got {led_radius}")
     if unrefined and init_depth is None:  # the outer loop's first pass: it only seeds the passes after it
         opts = dataclasses.replace(opts, energy_rtol=opts.seed_energy_rtol)
     t_start = time.perf_counter()
@@ -143,6 +151,7 @@ def solve(
             progress,
             init_depth,
             unrefined,
+            led_radius,
         )
     refined = opts.normals == "refined" and unrefined == 0  # an unrefined pass only feeds the next one
     if refined:
@@ -183,11 +192,12 @@ def _solve_checked(
     progress: bool,
     init_depth: np.ndarray | None,
     unrefined: int,
+    led_radius: float = 0.0,
 ) -> SolveResult:
     """:func:`solve` on checked inputs (see there), without its timer and warnings."""
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
     crop, cam = crop_to_mask(mask, camera)
-    data = LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
+    data = LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts, led_radius)
     # the sensor's whole gel: every whole-frame press solves on it, so its levels' rays and large levels'
     # operators recur
     whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))

@@ -1,0 +1,111 @@
+"""The NLiPs solve with LEDs that emit from disks (``led_radius``): the kernel's disk model is
+:func:`nlipscalib.core.leds.disk_shading`'s, and on a view that sees the dome down to its base the whole gel's depth
+no longer takes the point model's bump.
+
+Before s32-rimdepth the solver had point LEDs only: on a 160x120 direct-light render of the default design seen from
+8 mm below the base with a 130 deg lens, the whole-frame solve's depth carried a smooth bump of +0.09 mm over the
+dome's middle (the contact's depth RMSE 0.08 mm against 0.004 on the gel-filling view), from the gel beside the LEDs,
+where the point model misses their 3.6 mm light cups' light by up to 8 %.
+"""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core.leds import disk_points, disk_shading
+from nlipscalib.solver import geometry, kernel
+
+from . import synth
+
+RADIUS = 1.8
+"""mm: the default twin's LED light cups (``[led_package] size = 3.6``)."""
+
+
+def test_the_kernel_shades_disk_leds_as_core_disk_shading():
+    rng = np.random.default_rng(7)
+    n = 400
+    q = np.column_stack([rng.uniform(-0.6, 0.6, (n, 2)), np.ones(n)])
+    A = rng.normal(0.0, 0.02, (n, 3))
+    B = rng.normal(0.0, 0.02, (n, 3))
+    C = np.column_stack([rng.normal(0.0, 1e-4, (n, 2)), np.full(n, 1e-3)])
+    leds = synth.ring_leds(jitter=1)
+    pos = np.array([led.position for led in leds])
+    dirs = np.array([led.direction for led in leds])
+    mu = np.array([led.mu for led in leds])
+    psi = np.array([led.intensity for led in leds])
+    images = np.zeros((len(leds), 3, n))
+    t = np.log(rng.uniform(6.0, 12.0, n))  # near the LEDs (8 mm away): the disks differ from points by percents
+    tu, tv = rng.normal(0.0, 1e-3, (2, n))
+    be = kernel.Backend("numpy", "float64")
+    disk = kernel.Model(be, q, A, B, C, disk_points(pos, dirs, RADIUS), dirs, mu, psi, images, images)
+    point = kernel.Model(be, q, A, B, C, pos, dirs, mu, psi, images, images)
+    F, dt, du, dv = disk.shading(t, tu, tv, True)
+    normals = geometry.normals_from_gradient(tu, tv, A, B, C)
+    expected = disk_shading(np.exp(t)[:, None] * q, normals, leds, RADIUS)[..., 0] / psi[:, :1]
+    np.testing.assert_allclose(F, expected, rtol=1e-10, atol=1e-14)
+    assert np.max(np.abs(F / np.maximum(point.shading(t, tu, tv), 1e-30) - 1)[expected > 0]) > 0.01
+    # the derivatives are the mean's: against central differences of the shading
+    h = 1e-6
+    for d, step in ((dt, (h, 0, 0)), (du, (0, h, 0)), (dv, (0, 0, h))):
+        plus = disk.shading(t + step[0], tu + step[1], tv + step[2])
+        minus = disk.shading(t - step[0], tu - step[1], tv - step[2])
+        np.testing.assert_allclose(d, (plus - minus) / (2 * h), rtol=1e-5, atol=1e-9)
+
+
+RIM_VIEW = {"width": 160, "height": 120, "hfov_deg": 130.0, "position": (0.0, 0.0, -8.0)}
+
+
+@pytest.fixture(scope="module")
+def rim_sphere(tmp_path_factory):
+    """The default design (disk LEDs) in direct light, seen down to the dome's base: a 6 mm sphere 1.5 mm deep."""
+    pytest.importorskip("mitsuba")
+    from nlipscalib.core import load_press
+    from nlipscalib.sim.indent import PressConfig
+    from nlipscalib.sim.press import render_press
+    from nlipscalib.sim.scene import load_scene
+
+    scene = load_scene().replace(camera=RIM_VIEW)
+    press = PressConfig(depth=1.5)
+    return load_press(render_press(scene, press, tmp_path_factory.mktemp("rim") / "sphere", seed=3))
+
+
+def test_a_rim_views_whole_frame_depth_takes_no_bump_with_disk_leds(rim_sphere):
+    from nlipscalib.solver.press import solve_press
+
+    gt = rim_sphere.ground_truth
+    contact = gt.contact
+    assert contact.sum() > 300 and np.isfinite(rim_sphere.reference.depth).mean() < 0.9  # a dent; black corners
+
+    def depth_rmse(result):
+        error = result.depth[contact] - gt.depth[contact]
+        return float(np.sqrt(np.mean(error**2)))
+
+    points = depth_rmse(solve_press(rim_sphere))
+    disks = depth_rmse(solve_press(rim_sphere, led_radius=RADIUS))
+    assert points > 0.05  # the point model's bump (0.12 mm with the design's LEDs as points)
+    assert disks < 0.015  # 0.005 mm
+
+
+def test_solve_led_model_disks_takes_the_led_files_emitters(rim_sphere, tmp_path, capsys):
+    """``nlips solve --leds FILE --led-model disks``: the file's disks, solved as disks and recorded; a file without
+    disks is refused in one line (exit 2)."""
+    import json
+
+    from nlipscalib.cli import main
+    from nlipscalib.core.reconstruction import load_reconstruction
+
+    leds = [led.to_dict() for led in rim_sphere.leds]
+    points_only = tmp_path / "points.json"
+    points_only.write_text(json.dumps({"leds": leds}), encoding="utf-8")
+    with_disks = tmp_path / "disks.json"
+    with_disks.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": leds}}), encoding="utf-8")
+    folder = str(rim_sphere.folder)
+    assert main(["--no-progress", "solve", folder, "--leds", str(points_only), "--led-model", "disks"]) == 2
+    assert "no disk LEDs fitted" in capsys.readouterr().err
+    out = tmp_path / "out"
+    args = ["--no-progress", "solve", folder, "--leds", str(with_disks), "--led-model", "disks", "--out", str(out)]
+    assert main([*args, "--no-figures"]) == 0
+    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    assert report["provenance"]["settings"]["solver_keywords"]["led_radius"] == RADIUS
+    gt = rim_sphere.ground_truth
+    depth = load_reconstruction(out, gt.depth.shape).depth
+    assert np.sqrt(np.mean((depth[gt.contact] - gt.depth[gt.contact]) ** 2)) < 0.015
