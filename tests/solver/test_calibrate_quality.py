@@ -133,6 +133,13 @@ def test_calibrate_leds_refuses_a_pressed_capture_and_fits_around_its_contact_wh
     pressed = render_press(scene, coin, tmp_path / "pressed", seed=21)
     out = tmp_path / "leds.json"
     argv = ["--no-progress", "calibrate-leds", str(pressed), "--out", str(out), "--stride", str(STRIDE)]
+    assert main(argv) == 2  # the twin's meta.json names the press: refused before the fit
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"nlips calibrate-leds: error: {pressed}: a press of the twin (a coin of 6 mm"), line
+    meta_file = pressed / "meta.json"  # a real sensor's capture records no press: the fit's contact check tells
+    meta = json.loads(meta_file.read_text(encoding="utf-8"))
+    del meta["provenance"]["press"]
+    meta_file.write_text(json.dumps(meta), encoding="utf-8")
     assert main(argv) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith(f"nlips calibrate-leds: error: {pressed}: not a capture of the undeformed dome: "), line
