@@ -71,3 +71,19 @@ def test_a_dataset_folder_given_for_its_spec_is_called_a_folder(tmp_path, monkey
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["nlips dataset: error: out/small: a folder, not a config file (.toml, .yaml)"], err
     assert not (tmp_path / "out" / "again").exists()
+
+
+def test_the_wide_scene_is_the_default_sensor_seen_past_its_gel(tmp_path):
+    """scenes/nlipstac_wide.toml (docs/twin.md, "A view beyond the gel"): the default sensor with only its camera
+    moved back and widened; the design's gel footprint (``core.dome.reference_surface``, a device capture's mask)
+    leaves black corners, and the render's ``valid`` is that footprint."""
+    from nlipscalib.core.dome import reference_surface
+
+    small = {"width": 64, "height": 48}
+    wide = load_scene("nlipstac_wide").replace(camera=small)
+    default = load_scene().replace(camera={**small, "hfov_deg": 130.0, "position": (0.0, 0.0, -8.0)})
+    assert {k for k, v in wide.to_dict().items() if default.to_dict()[k] != v} == {"name"}
+    footprint = np.isfinite(reference_surface(wide.design, wide.camera_model()).depth)
+    assert 0.75 < footprint.mean() < 0.9 and not footprint[0, 0] and not footprint[-1, -1]
+    valid = load_press(render_press(wide, None, tmp_path / "wide", seed=0)).ground_truth.valid
+    assert np.array_equal(valid, footprint)
