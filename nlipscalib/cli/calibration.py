@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .options import SOLVE_WORKERS_HELP
+from .options import SOLVE_WORKERS_HELP, add_led_model
 
 if TYPE_CHECKING:
     from ..learn.dataset import SamplingConfig
@@ -23,7 +23,7 @@ OPTION_OF = {
     "smoothing_px": "--smoothing",
 }
 """The option of `nlips calibrate` that sets each SamplingConfig field (its validation messages name the field)."""
-SOLVE_OPTION_OF = {"normals": "--normals", "leds": "--leds", "reference": "--reference"}
+SOLVE_OPTION_OF = {"normals": "--normals", "leds": "--leds", "led_model": "--led-model", "reference": "--reference"}
 """The option of `nlips calibrate` that sets each other thing a dataset's samples depend on
 (learn.dataset.dataset_run), for the line refusing a build of other samples into the same --out."""
 COVERAGE_FILES = ("coverage.json", "coverage.png")
@@ -53,6 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "`nlips solve --leds FILE` (an LED file of another sensor is refused); results solved with other LEDs are "
         "solved again (default: the LEDs each capture records)",
     )
+    add_led_model(p)
     p.add_argument(
         "--normals",
         choices=("depth", "refined"),
@@ -98,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.press_folders import is_press_folder, no_presses_error, split_reference
     from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
+    from ..pipeline.settings import disk_leds
     from ..progress import BATCH, press_lines
     from .folders import check_one_capture, check_undeformed
 
@@ -136,12 +138,17 @@ def run(args: argparse.Namespace) -> int:
     responses_agree(reference, presses)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
+    if args.led_model == "disks":  # no LED file, or one without disks: one line now, not after the hold
+        disk_leds(args.leds)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
     damaged = _left_out_damaged(root, presses, out)
     presses = [p for p in presses if p.name not in damaged]
-    run = dataset_run(presses, reference, cfg, solve={"normals": args.normals, "leds": leds})
+    solve = {"normals": args.normals, "leds": leds}
+    if args.led_model != "points":  # recorded when not the default: the datasets of point LEDs keep their records
+        solve["led_model"] = args.led_model
+    run = dataset_run(presses, reference, cfg, solve=solve)
     # held from before the solves: a build of other samples into this --out is refused now, not after them
     with hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF):
         return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged)
@@ -186,7 +193,13 @@ def _solve_and_build(
     # as `nlips solve FOLDER`: one solver per two cores, fewer where memory holds fewer (1280x960: ~1.9 GB each)
     workers = solve_worker_count(args.workers, SOLVE_ROI_MEMORY, *image_size(reference))
     status = solve_all(
-        presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds, normals=args.normals
+        presses,
+        reference,
+        workers=workers,
+        progress=not args.no_progress,
+        leds=args.leds,
+        normals=args.normals,
+        led_model=args.led_model,
     )
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
     # each failure was logged with its cause as it happened (pipeline.solve._status_of): listed by name at the end only
@@ -324,12 +337,14 @@ def solve_all(
     progress: bool = True,
     leds: str | None = None,
     normals: str = "depth",
+    led_model: str = "points",
 ) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
     presses already solved with the same options and inputs are skipped. ``leds``: an LED file from ``nlips
     calibrate-leds`` to solve with (None: each capture's LEDs); its LED values are part of a result's settings,
     so a result solved with other LEDs is solved again. ``normals``: ``SolverOptions.normals`` of the labels
-    (a result with the other normals is solved again).
+    (a result with the other normals is solved again). ``led_model``: "points" or "disks", the LED file's fitted disk
+    emitters (``nlips solve --led-model``; recorded in a result's settings, so a result of the other is solved again).
 
     The dataset needs every press's result, so a press another run (a second ``nlips calibrate`` or
     ``nlips solve`` on the folder) is solving is waited for (``wait=True``) rather than skipped: its
@@ -349,4 +364,5 @@ def solve_all(
         progress=progress,
         figures=False,
         wait=True,
+        led_model=led_model,
     )

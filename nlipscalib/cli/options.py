@@ -34,6 +34,19 @@ RENDER_WORKERS_HELP = (
 run_dataset`'s ``workers=0``."""
 
 
+def add_led_model(parser: argparse.ArgumentParser) -> None:
+    """``--led-model points|disks`` (dest ``led_model``) of every command that solves presses with an LED file
+    (``solve``, ``calibrate``): one flag, one text, :func:`nlipscalib.pipeline.solve_presses`' ``led_model``."""
+    parser.add_argument(
+        "--led-model",
+        choices=("points", "disks"),
+        default="points",
+        help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
+        "disks: 7x the model's cost; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
+        "where points misplace the whole gel's depth by up to 0.1 mm)",
+    )
+
+
 def typed(args: argparse.Namespace, dests: Iterable[str]) -> list[str]:
     """The options among ``dests`` that the user typed, in the order of ``dests``.
 

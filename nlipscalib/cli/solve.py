@@ -8,7 +8,7 @@ import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from .options import SOLVE_WORKERS_HELP
+from .options import SOLVE_WORKERS_HELP, add_led_model
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when a press is solved
     from pathlib import Path
@@ -111,14 +111,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="solve LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
         "captured; by default they are solved in the order they show, with a warning and report.json's led_order",
     )
-    p.add_argument(
-        "--led-model",
-        choices=("points", "disks"),
-        default="points",
-        help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
-        "disks: 7x the model's cost; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
-        "where points misplace the whole gel's depth by up to 0.1 mm)",
-    )
+    add_led_model(p)
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")

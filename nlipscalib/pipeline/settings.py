@@ -88,7 +88,7 @@ def make_settings(
     if led_model not in ("points", "disks"):
         raise ConfigError(f"led_model must be 'points' or 'disks', got {led_model!r}")
     if led_model == "disks":  # the file's points stay the contact map's and indirect term's LEDs
-        emitters, radius = _disk_leds(leds_file)
+        emitters, radius = disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
     return SolveSettings(
@@ -324,7 +324,7 @@ def _resolve_leds(
     raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
 
 
-def _disk_leds(leds_file: str | None) -> tuple[tuple[Led, ...], float]:
+def disk_leds(leds_file: str | None) -> tuple[tuple[Led, ...], float]:
     """The disk emitters of an LED file and their radius (mm), for ``led_model="disks"``; ConfigError naming the
     file (or the missing file) when there are none."""
     from ..core.ledfile import read_led_file

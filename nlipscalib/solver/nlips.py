@@ -157,7 +157,7 @@ def solve(
     if refined:
         from .refine import refine_result  # refine imports this module
 
-        result = refine_result(result, images, saturated, leds, opts)
+        result = refine_result(result, images, saturated, leds, opts, led_radius)
     report = result.report
     report.update(
         {"backend": backend, "seconds": time.perf_counter() - t_start, "normals": "refined" if refined else "depth"}

@@ -17,6 +17,10 @@ ratio does not depend on its normal). The fit is robust, because shadow is what 
 - samples the fitted normal faces away from (attached shadow: the model's max(0, .)) are dropped;
 - the rest are reweighted (Cauchy IRLS) at the solve's own scale lambda, from the depth's normal.
 
+LEDs that emit from disks (the solve's ``led_radius``, ``nlips solve --led-model disks``) are fitted with their mean
+light vector over the disk (:func:`nlipscalib.core.leds.disk_shading`'s quadrature): the disk model itself wherever
+the whole disk lights the pixel, as the brightest LEDs do; the max(0, .) is then the whole disk's, not each point's.
+
 A pixel keeps the depth's normal unless the refined one fits those samples better by
 :data:`~nlipscalib.core.tolerances.REFINE_GATE` (Cauchy energy / lambda^2): per pixel the fit is noisier than the
 depth's normal, which the whole surface constrains (ungated: the sphere press's contact 0.52 -> 1.0 deg), so it
@@ -38,7 +42,7 @@ import time
 import numpy as np
 
 from ..core import tolerances
-from ..core.leds import SHADING_BLOCK, Leds, led_arrays, led_shading
+from ..core.leds import SHADING_BLOCK, Leds, disk_shading, led_arrays
 from . import robust, threads
 from .nlips import SolveResult
 from .options import SolverOptions
@@ -51,6 +55,7 @@ def refine_result(
     saturated: np.ndarray | None,
     leds: Leds,
     options: SolverOptions,
+    led_radius: float = 0.0,
 ) -> SolveResult:
     """``result`` with its normals (and albedo) refined per pixel where its images reject the depth's normals.
 
@@ -62,6 +67,8 @@ def refine_result(
     saturated : (L, H, W, 3) bool or None.
     leds : sequence of Led, length L, camera frame, mm.
     options : SolverOptions of that solve (its exclusions are the fit's).
+    led_radius : float, mm -- that solve's ``led_radius``: > 0, the LEDs emit from disks of this radius
+        (:func:`nlipscalib.core.leds.disk_shading`'s model, as the solve's); 0: point LEDs.
 
     Returns
     -------
@@ -90,6 +97,7 @@ def refine_result(
                 leds,
                 lam,
                 brightest=max(tolerances.MIN_LEDS_PER_PIXEL, round(tolerances.REFINE_LED_SHARE * alive)),
+                led_radius=led_radius,
             )
         )
         normals[box][inside] = n_new
@@ -119,6 +127,8 @@ class RefitInputs:
     """Linear image units -- lambda of the Cauchy reweighting (the solve's)."""
     brightest: int
     """LEDs fitted at each pixel, the brightest there (summed over its usable channels)."""
+    led_radius: float = 0.0
+    """mm -- > 0: the LEDs emit from disks of this radius (the solve's ``led_radius``); 0: point LEDs."""
 
     def pixels(self, part: slice) -> RefitInputs:
         """The same refit on the pixels ``part`` only."""
@@ -179,7 +189,8 @@ def _refine_block(fit: RefitInputs) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     top = _brightest(I, use, fit.brightest)
     support = use & top
     points = np.asarray(fit.points, np.float64)
-    shade0 = led_shading(points, n0.T, leds).transpose(2, 0, 1) * k[:, None]  # max(0, A.n0)
+    g_all, shade0 = _depth_shading(points, n0, leds, fit.led_radius)
+    shade0 *= k[:, None]  # max(0, A.n0), the fit's model
     idx = np.flatnonzero(_may_pass_gate(I, support, shade0, scale))
     n0, rho0, k, points = n0[:, idx], rho0[:, idx], k[:, idx], points[idx]
     # only the brightest LEDs' samples can be fitted: each pixel's, in LED order (the sums' order, so their
@@ -187,7 +198,8 @@ def _refine_block(fit: RefitInputs) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     top = top[:, idx]
     order = np.argsort(~top, axis=0, kind="stable")[: int(top.sum(axis=0).max(initial=0))][None]  # (1, K, N)
     I, support = np.take_along_axis(I[..., idx], order, 1), np.take_along_axis(support[..., idx], order, 1)
-    g = np.take_along_axis(_light_vectors(points, leds), order, 1)  # (3, K, N)
+    g = _light_vectors(points, leds, fit.led_radius) if g_all is None else g_all[..., idx]
+    g = np.take_along_axis(g, order, 1)  # (3, K, N)
     q = led_arrays(leds)[3].T[:, order[0]] * k[:, None]  # (3, K, N) Psi_ic k_c
     qq, qI = q * q, q * I
     gg = {(i, j): g[i] * g[j] for i in range(3) for j in range(i, 3)}
@@ -227,16 +239,34 @@ def _may_pass_gate(images: np.ndarray, support: np.ndarray, shade: np.ndarray, s
     return (bound > tolerances.REFINE_GATE * (1 - 1e-9)) | (support & (images < 0)).any(axis=(0, 1))
 
 
-def _light_vectors(points: np.ndarray, leds: Leds) -> np.ndarray:
+def _depth_shading(
+    points: np.ndarray, normals: np.ndarray, leds: Leds, radius: float
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """(the light vectors (3, L, N) or None, the fit's shading max(0, Psi_ic g_i . n) (3, L, N)) of the (3, N)
+    ``normals`` at the (N, 3) ``points``: the model the gate's bound (:func:`_may_pass_gate`) must share with the fit.
+
+    Point LEDs: :func:`nlipscalib.core.leds.led_shading` itself (no light vectors: they are read off at the fitted
+    pixels only). Disk LEDs: from their mean light vectors (:func:`_light_vectors`), which :func:`disk_shading`
+    equals wherever the whole disk lights the point and exceeds where the point's tangent plane cuts the disk."""
+    if not radius > 0:
+        return None, disk_shading(points, normals.T, leds, 0.0).transpose(2, 0, 1)
+    g = _light_vectors(points, leds, radius)
+    psi = led_arrays(leds)[3].T[:, :, None]  # (3, L, 1)
+    return g, np.maximum(_along(g, normals), 0.0)[None] * psi
+
+
+def _light_vectors(points: np.ndarray, leds: Leds, radius: float = 0.0) -> np.ndarray:
     """(3, L, N) float64 g by component, g = (n_s . d)^mu (x_s - x) / |x_s - x|^3 at unit intensity (m_ic = Psi_ic
     g_i) -- the shading of a normal n is max(0, Psi_ic g_i . n). Read off the one shading formula
-    (:func:`nlipscalib.core.leds.led_shading`), which is g . e_j for the axis e_j when positive and 0 otherwise:
-    g_j = shading(e_j) - shading(-e_j), with Psi = 1."""
+    (:func:`nlipscalib.core.leds.disk_shading`, point LEDs at ``radius`` 0), which is g . e_j for the axis e_j when
+    positive and 0 otherwise: g_j = shading(e_j) - shading(-e_j), with Psi = 1. Of disk LEDs (``radius`` > 0, mm)
+    that difference is, point by point of the disk's quadrature, its points' mean light vector: the disk's model
+    wherever the whole disk lights the point (the brightest LEDs the fit keeps), where it is linear in n."""
     unit = [dataclasses.replace(led, intensity=(1.0, 1.0, 1.0)) for led in leds]
     g = np.empty((3, len(leds), len(points)))
     for j, axis in enumerate(np.eye(3)):
         e = np.broadcast_to(axis, points.shape)
-        g[j] = led_shading(points, e, unit)[..., 0] - led_shading(points, -e, unit)[..., 0]
+        g[j] = disk_shading(points, e, unit, radius)[..., 0] - disk_shading(points, -e, unit, radius)[..., 0]
     return g
 
 

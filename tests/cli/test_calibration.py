@@ -210,3 +210,39 @@ def test_a_torn_index_is_named_by_train_with_its_remedy_and_calibrate_writes_it_
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0  # the remedy named works
     assert json.loads(index.read_text(encoding="utf-8"))["presses"] == whole["presses"]
     assert {p: p.stat().st_mtime_ns for p in shards} == shards  # the samples kept, not made again
+
+
+def test_calibrate_led_model_disks_solves_every_label_press_with_the_led_files_disks(session, tmp_path, capsys):
+    """`nlips calibrate --led-model disks` (as `nlips solve --led-model disks`): every press solved with the LED
+    file's disks, recorded in its result's settings, so a default run solves it again with points; no LED file, or
+    one without disks, is one line before any solving. Before s32-diskmodel calibrate had no --led-model: its labels
+    came from point LEDs whatever the view."""
+    _, leds = session
+    root = tmp_path / "presses"
+    synth.make_press(root / "reference", "none", size=SIZE)
+    synth.make_press(root / "press_0001", "sphere", size=SIZE)
+    calibrated = json.loads(leds.read_text(encoding="utf-8"))
+    calibrated["emitters"] = {"radius_mm": 1.8, "leds": calibrated["leds"]}
+    with_disks = tmp_path / "disks.json"
+    with_disks.write_text(json.dumps(calibrated), encoding="utf-8")
+    no_disks = tmp_path / "points.json"
+    no_disks.write_text(json.dumps({k: v for k, v in calibrated.items() if k != "emitters"}), encoding="utf-8")
+    capsys.readouterr()
+    for given, problem in (
+        ([], "--led-model disks needs --leds FILE"),
+        (["--leds", str(no_disks)], f"{no_disks}: no disk LEDs fitted"),
+    ):
+        assert main(["calibrate", str(root), *given, "--led-model", "disks", "--workers", "1", "--no-progress"]) == 2
+        err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert len(err) == 1 and problem in err[0], err
+    assert not (root / "press_0001" / "nlips").exists() and not (root / "calibration").exists()
+
+    def radius() -> float | None:
+        report = json.loads((root / "press_0001" / "nlips" / "report.json").read_text(encoding="utf-8"))
+        return report["provenance"]["settings"]["solver_keywords"].get("led_radius")
+
+    command = ["calibrate", str(root), "--leds", str(with_disks), "--workers", "1", "--no-progress"]
+    assert main([*command, "--led-model", "disks"]) == 0
+    assert radius() == 1.8
+    assert main(command) == 0  # the same LED file's points: solved again, not the disks' result reused
+    assert radius() is None

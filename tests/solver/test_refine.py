@@ -9,6 +9,7 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.core import load_press
 from nlipscalib.core.errors import ConfigError
+from nlipscalib.core.leds import disk_shading
 from nlipscalib.core.metrics import angle_deg, evaluate
 from nlipscalib.solver import SolverOptions, refine, solve_press
 from nlipscalib.solver.refine import RefitInputs, refine_normals
@@ -34,11 +35,12 @@ def _surface(kind: str):
     return lin[:, valid], pts[valid], nrm[valid], leds
 
 
-def _refined(images, points, normals, start, leds, sigma=0.0):
+def _refined(images, points, normals, start, leds, sigma=0.0, led_radius=0.0):
     lit = images > 0  # exact data: the solve's shadow exclusion is the model's max(0, .)
     scale = max(3 * sigma, 0.02 * float(np.median(images[lit])))  # the solve's lambda: 3 sigma, its floor
     albedo = np.broadcast_to(ALBEDO * 1.1, normals.shape)  # its ratios right, its level not
-    return refine_normals(RefitInputs(images, lit, points, start, albedo, leds, scale, brightest=8))
+    fit = RefitInputs(images, lit, points, start, albedo, leds, scale, brightest=8, led_radius=led_radius)
+    return refine_normals(fit)
 
 
 def test_exact_images_give_the_true_normals_and_albedo():
@@ -47,6 +49,24 @@ def test_exact_images_give_the_true_normals_and_albedo():
     assert changed.all()
     assert np.nanmax(angle_deg(n, truth)) < 1e-4
     np.testing.assert_allclose(rho, np.broadcast_to(ALBEDO, rho.shape), rtol=1e-5)
+
+
+DISK_RADIUS = 1.8
+"""mm: the default twin's LED light cups (``[led_package] size = 3.6``)."""
+
+
+def test_disk_leds_are_refitted_with_the_disk_model_the_solve_used():
+    # images of LEDs that emit from disks: refined with the disks (a --led-model disks solve) the normals are the
+    # truth; with points (before s32-diskmodel, whatever the solve's LEDs) they are off by the disks' missed light
+    _, points, truth, leds = _surface("cube")
+    images = disk_shading(points, truth, leds, DISK_RADIUS) * ALBEDO  # (L, N, 3)
+    start = _tilted(truth, 8.0)
+    n, rho, changed = _refined(images, points, truth, start, leds, led_radius=DISK_RADIUS)
+    assert changed.mean() > 0.99
+    assert np.nanmax(angle_deg(n[changed], truth[changed])) < 1e-4
+    np.testing.assert_allclose(rho[changed], np.broadcast_to(ALBEDO, rho[changed].shape), rtol=1e-5)
+    as_points = _refined(images, points, truth, start, leds)[0]
+    assert np.nanmax(angle_deg(as_points, truth)) > 100 * np.nanmax(angle_deg(n[changed], truth[changed]))
 
 
 def _noisy_sphere():
@@ -77,9 +97,9 @@ def test_pixels_whose_images_cannot_reject_their_normal_are_not_fitted_and_the_n
     fitted = []
     light_vectors = refine._light_vectors
 
-    def counted(pts, leds_):
+    def counted(pts, leds_, *radius):
         fitted.append(len(pts))
-        return light_vectors(pts, leds_)
+        return light_vectors(pts, leds_, *radius)
 
     monkeypatch.setattr(refine, "_light_vectors", counted)
     skipping = _refined(noisy, points, truth, start, leds, sigma)
