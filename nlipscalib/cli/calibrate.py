@@ -263,7 +263,7 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     record = {k: led_model[k] for k in ("fitted", "diameter_mm", "from")}
     # how bright the LEDs lit the gel: what a later --previous compares all LEDs' light by (the gauge hides it)
-    extra = {"led_model": record, "sensor": sensor_of(presses[0]), "light_level": light_level(presses)}
+    extra = {"led_model": record, "sensor": sensor_of(presses[0]), "light_level": light_level(presses, cal.led_order)}
     previous = _compared(args, cal, extra["light_level"])
     if previous is not None:
         extra["previous"] = previous

@@ -43,7 +43,7 @@ def check_previous_sensor(previous: LedFile, where: str | Path, sensor: dict, ca
         )
 
 
-def light_level(presses: Sequence[Press]) -> dict:
+def light_level(presses: Sequence[Press], order: Sequence[int] | None = None) -> dict:
     """How bright the LEDs light the undeformed gel, in the capture's own units: the LED file's ``light_level``.
 
     Why not the calibration's Psi or albedo: Psi is gauged to mean 1 per channel, and the albedo that then carries the
@@ -54,6 +54,8 @@ def light_level(presses: Sequence[Press]) -> dict:
     ----------
     presses : sequence of Press -- the undeformed captures calibrated (with their reference: the gel's pixels are
         those its depth covers; all pixels without one).
+    order : sequence of int, length L, or None -- the image (0-based) each LED was fitted to, where the calibration
+        found them out of order (its ``led_order``); None: as captured.
 
     Returns
     -------
@@ -67,8 +69,9 @@ def light_level(presses: Sequence[Press]) -> dict:
         gel = np.ones(press.camera.shape, bool) if depth is None else np.isfinite(depth)
         medians.append(np.median(press.linear_led_images[:, gel], axis=1))  # (L, 3)
     response = presses[0].response
+    level = np.mean(medians, axis=0)
     return {
-        "gel_median": np.mean(medians, axis=0).tolist(),
+        "gel_median": (level if order is None else level[list(order)]).tolist(),
         "exposure_ms": float(response.exposure_ms),
         "gain": float(response.gain),
     }

@@ -100,6 +100,8 @@ def test_light_level_is_the_gels_median_above_the_dark_frame_and_scales_with_the
     assert level["exposure_ms"] == first.response.exposure_ms and level["gain"] == first.response.gain
     assert overall_brightness_ratio(level, dim) == pytest.approx(0.9, abs=1e-3)
     assert overall_brightness_ratio(level, light_level([first, dimmed])) == pytest.approx(0.95, abs=1e-3)
+    swapped = light_level([first], order=[1, 0] + list(range(2, 12)))  # LEDs 1 and 2 fitted to each other's image
+    assert swapped["gel_median"][0] == level["gel_median"][1] and swapped["gel_median"][2] == level["gel_median"][2]
 
 
 def test_all_leds_dimmed_alike_are_one_change_the_shares_cannot_see():
