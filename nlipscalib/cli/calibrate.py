@@ -95,7 +95,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--previous",
         metavar="OLD_LEDS.json",
         help="an earlier LED file of this sensor: say which LEDs or tri-colour groups changed brightness (aged, "
-        "replaced) or moved since, one warning line each, in the table and in the new file ('previous'); a file of "
+        "replaced), whether all LEDs dimmed or brightened alike (or the exposure changed), or moved since, one warning "
+        "line each, in the table and in the new file ('previous'); a file of "
         "another sensor is refused. It may be the --out file itself (read before it is replaced)",
     )
     p.set_defaults(func=run)
@@ -230,6 +231,7 @@ def _fit_and_write(args: argparse.Namespace) -> int:
 
     from ..core.atomic import check_free_space
     from ..core.capture import load_press
+    from ..core.led_change import light_level
     from ..core.ledfile import led_file_bytes, save_leds
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
@@ -260,8 +262,9 @@ def _fit_and_write(args: argparse.Namespace) -> int:
         )
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     record = {k: led_model[k] for k in ("fitted", "diameter_mm", "from")}
-    extra = {"led_model": record, "sensor": sensor_of(presses[0])}
-    previous = _compared(args, cal)
+    # how bright the LEDs lit the gel: what a later --previous compares all LEDs' light by (the gauge hides it)
+    extra = {"led_model": record, "sensor": sensor_of(presses[0]), "light_level": light_level(presses, cal.led_order)}
+    previous = _compared(args, cal, extra["light_level"])
     if previous is not None:
         extra["previous"] = previous
     save_leds(args.out, cal.leds, cal.to_json() | extra)
@@ -304,7 +307,10 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     say(_fit_line(cal.quality))
     if previous is not None:
         said = f"{len(previous['changes'])} change(s), warned above, also in the file's 'previous'"
-        say(f"against {args.previous}: {said if previous['changes'] else 'no LED changed beyond the tolerances'}")
+        overall = previous["overall_brightness"]
+        said = said if previous["changes"] else "no LED changed beyond the tolerances"
+        together = "" if overall is None else f"all LEDs together x{overall:.3f}; "
+        say(f"against {args.previous}: {together}{said}")
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
@@ -313,14 +319,15 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     return 0
 
 
-def _compared(args: argparse.Namespace, cal: LedCalibration) -> dict | None:
+def _compared(args: argparse.Namespace, cal: LedCalibration, level: dict) -> dict | None:
     """With ``--previous``: the new calibration against the earlier file
-    (:func:`nlipscalib.core.led_change.compare_calibrations`), each change warned in one line; None without it."""
+    (:func:`nlipscalib.core.led_change.compare_calibrations`, ``level`` the new captures' light level), each change
+    warned in one line; None without it."""
     if args.previous is None:
         return None
     from ..core.led_change import compare_calibrations
 
-    previous = compare_calibrations(args.previous_file, args.previous, cal.leds, cal.not_fitted)
+    previous = compare_calibrations(args.previous_file, args.previous, cal.leds, cal.not_fitted, level)
     for line in previous["changes"]:
         log.warning("%s", line)
     return previous

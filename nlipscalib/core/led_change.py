@@ -8,7 +8,9 @@ only gets its LEDs.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +19,9 @@ from .errors import CaptureError
 from .ledfile import LedFile
 from .leds import TRICOLOR_NAMES, Leds, led_arrays, led_offsets, tricolor_groups
 from .sensor_record import leds_file_mismatch
+
+if TYPE_CHECKING:
+    from .capture import Press
 
 
 def check_previous_sensor(previous: LedFile, where: str | Path, sensor: dict, captures: str) -> None:
@@ -36,6 +41,59 @@ def check_previous_sensor(previous: LedFile, where: str | Path, sensor: dict, ca
             f"--previous {where}: calibrated on another sensor than {captures} ({why}); give an earlier LED file of "
             "this sensor"
         )
+
+
+def light_level(presses: Sequence[Press], order: Sequence[int] | None = None) -> dict:
+    """How bright the LEDs light the undeformed gel, in the capture's own units: the LED file's ``light_level``.
+
+    Why not the calibration's Psi or albedo: Psi is gauged to mean 1 per channel, and the albedo that then carries the
+    scale trades against the coating's fitted reflectance (3.9 % between two noise seeds of one dome); the images'
+    median over the gel repeats to 0.2 % (benchmarks/RESULTS.md, s32-prevbright).
+
+    Parameters
+    ----------
+    presses : sequence of Press -- the undeformed captures calibrated (with their reference: the gel's pixels are
+        those its depth covers; all pixels without one).
+    order : sequence of int, length L, or None -- the image (0-based) each LED was fitted to, where the calibration
+        found them out of order (its ``led_order``); None: as captured.
+
+    Returns
+    -------
+    dict, JSON-ready: ``gel_median`` (L, 3) per LED and channel, its linear light above the dark frame (1 = the
+    sensor's full range), median over the gel's pixels, mean over the captures; ``exposure_ms``, ``gain``: the first
+    capture's camera settings (meta.json ``sensor``), which scale it.
+    """
+    medians = []
+    for press in presses:
+        depth = None if press.reference is None else press.reference.depth
+        gel = np.ones(press.camera.shape, bool) if depth is None else np.isfinite(depth)
+        medians.append(np.median(press.linear_led_images[:, gel], axis=1))  # (L, 3)
+    response = presses[0].response
+    level = np.mean(medians, axis=0)
+    return {
+        "gel_median": (level if order is None else level[list(order)]).tolist(),
+        "exposure_ms": float(response.exposure_ms),
+        "gain": float(response.gain),
+    }
+
+
+def overall_brightness_ratio(previous: dict, level: dict, left_out: set[int] | frozenset[int] = frozenset()) -> float:
+    """The light of all LEDs alike now over in ``previous`` (two :func:`light_level` records): per channel the median
+    LED's ratio (the scale :func:`led_brightness_ratios` divides out: an LED's change is this times its share's), then
+    the geometric mean over the channels. LEDs in ``left_out`` are not counted; NaN when none are left.
+
+    Why the median LED's, not the sum's: one tri-colour group aged to 0.9 moved the sum of 12 LEDs to 0.967, named
+    a second time as all LEDs dimmed."""
+    old, new = np.asarray(previous["gel_median"], float), np.asarray(level["gel_median"], float)
+    if old.shape != new.shape:
+        return float("nan")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = new / old
+    ratio[sorted(left_out)] = np.nan
+    if not np.isfinite(ratio).any():
+        return float("nan")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(np.exp(np.mean(np.log(np.nanmedian(ratio, axis=0)))))
 
 
 def led_brightness_ratios(previous: Leds, leds: Leds, left_out: set[int] | frozenset[int] = frozenset()) -> np.ndarray:
@@ -69,7 +127,11 @@ def _changed(ratio: float, tolerance: float) -> bool:
 
 
 def compare_calibrations(
-    previous: LedFile, where: str | Path, leds: Leds, not_fitted: tuple[int, ...] | list[int] = ()
+    previous: LedFile,
+    where: str | Path,
+    leds: Leds,
+    not_fitted: tuple[int, ...] | list[int] = (),
+    level: dict | None = None,
 ) -> dict:
     """The changes between an earlier calibration ``previous`` (read from ``where``) and the new LEDs ``leds``.
 
@@ -78,26 +140,35 @@ def compare_calibrations(
     (its LEDs aged together, as on one driver channel); an LED whose own ratio over its group's strays beyond
     :data:`~nlipscalib.core.tolerances.LED_BRIGHTNESS_CHANGE` is one; an LED that moved beyond
     :data:`~nlipscalib.core.tolerances.LED_MOVED_MM` or turned beyond ``LED_TURNED_DEG`` is one. LEDs either
-    calibration did not fit (``not_fitted``, ``previous.not_fitted``) are not compared.
+    calibration did not fit (``not_fitted``, ``previous.not_fitted``) are not compared. All LEDs' light together
+    (``level`` against ``previous.light_level``, :func:`light_level`) straying beyond
+    :data:`~nlipscalib.core.tolerances.LED_OVERALL_CHANGE` is one change, first: the shares cannot see it.
 
     Returns
     -------
     dict, JSON-ready (the LED file's ``previous``): ``file`` (``where``), ``brightness`` (L,) ratios, ``moved_mm`` (L,),
-    ``turned_deg`` (L,) (NaN for an LED not compared), ``tolerances`` (the four), ``changes`` (one line per change, in
-    LED order; empty when nothing changed beyond them).
+    ``turned_deg`` (L,) (NaN for an LED not compared), ``overall_brightness`` (all LEDs' light over OLD's; None where
+    either file has no ``light_level``), ``tolerances`` (the five), ``changes`` (one line per change, the overall one
+    first, then in LED order; empty when nothing changed beyond them).
     """
     left_out = set(previous.not_fitted) | {int(i) for i in not_fitted}
     ratio = led_brightness_ratios(previous.leds, leds, left_out)
     old, new = led_arrays(previous.leds), led_arrays(leds)
     moved, turned = led_offsets(old[0], old[1], new[0], new[1])
     moved[sorted(left_out)], turned[sorted(left_out)] = np.nan, np.nan
-    changes = _brightness_changes(ratio, where) + _place_changes(moved, turned, where)
+    overall = None
+    if level is not None and previous.light_level is not None:
+        overall = overall_brightness_ratio(previous.light_level, level, left_out)
+    changes = _overall_change(overall, previous.light_level, level, where)
+    changes += _brightness_changes(ratio, where) + _place_changes(moved, turned, where)
     return {
         "file": str(where),
+        "overall_brightness": None if overall is None or overall != overall else overall,
         "brightness": [float(v) for v in ratio],
         "moved_mm": [float(v) for v in moved],
         "turned_deg": [float(v) for v in turned],
         "tolerances": {
+            "overall_brightness": tolerances.LED_OVERALL_CHANGE,
             "group_brightness": tolerances.LED_GROUP_CHANGE,
             "led_brightness": tolerances.LED_BRIGHTNESS_CHANGE,
             "moved_mm": tolerances.LED_MOVED_MM,
@@ -105,6 +176,28 @@ def compare_calibrations(
         },
         "changes": [line for _, line in sorted(changes, key=lambda change: change[0])],
     }
+
+
+def _overall_change(
+    overall: float | None, old: dict | None, new: dict | None, where: str | Path
+) -> list[tuple[int, str]]:
+    """(-1, line) when all LEDs' light together changed beyond the tolerance since ``where``: sorted before LED 1."""
+    if overall is None or overall != overall or not _changed(overall, tolerances.LED_OVERALL_CHANGE):
+        return []
+    settings = [(old[key], new[key]) for key in ("exposure_ms", "gain")]
+    if any(a != b for a, b in settings):
+        (t0, t1), (g0, g1) = settings
+        cause = f"the camera's exposure or gain changed ({t0:g} ms at gain {g0:g}, now {t1:g} ms at gain {g1:g})"
+    else:
+        cause = "every LED aged alike, their drive changed, or the camera's exposure, gain or aperture (not recorded)"
+    tol = tolerances.LED_OVERALL_CHANGE * 100
+    return [
+        (
+            -1,
+            f"all LEDs together give {overall:.2f} times the light they gave in {where} (the gel's median above the "
+            f"dark frame; beyond the {tol:g} % a calibration repeats to): {cause}",
+        )
+    ]
 
 
 def _brightness_changes(ratio: np.ndarray, where: str | Path) -> list[tuple[int, str]]:

@@ -9,6 +9,8 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
+import numpy as np
+
 from .atomic import write_json
 from .errors import CaptureError
 from .leds import Led, Leds
@@ -24,7 +26,8 @@ def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
 LED_FILE_BYTES_PER_LED = 2 << 10
 """An LED file's share per LED (its values, uncertainties, fit quality, disk emitters and sensor record, JSON
 indented): 12 LEDs took 13.8 KB as points, 19.5 KB with disks (the design's size, by default, or ``--led-diameter``;
-1.15-1.6 KB per LED; 160x120 reference of the default twin, 2026-12-05; 13.9 / 19.6 KB with ``led_model``, s29)."""
+1.15-1.6 KB per LED; 160x120 reference of the default twin, 2026-12-05; 13.9 / 19.6 KB with ``led_model``, s29;
+21.1 KB with disks and ``light_level``, s32)."""
 LED_FILE_BYTES_BASE = 8 << 10
 """An LED file's share whatever its LEDs: gauge, albedo, each capture's interreflection model (~0.5 KB), warnings,
 and the disk's block a file takes beyond its bytes (4 KiB)."""
@@ -52,6 +55,9 @@ class LedFile(NamedTuple):
     them so (``nlips solve --led-model disks``); empty when the calibration fitted none."""
     emitter_radius: float = 0.0
     """mm: the disks' radius (``emitters.radius_mm``); 0 without emitters."""
+    light_level: dict | None = None
+    """How bright the LEDs lit the gel in the captures calibrated (the file's ``light_level``:
+    :func:`nlipscalib.core.led_change.light_level`); None in files written before it was recorded (2026-12-06)."""
 
 
 def read_led_file(path: str | Path) -> LedFile:
@@ -85,7 +91,23 @@ def read_led_file(path: str | Path) -> LedFile:
         _not_fitted(data, path, len(leds)),
         emitters,
         radius,
+        _light_level(data, path, len(leds)),
     )
+
+
+def _light_level(data: dict, path: Path, n_leds: int) -> dict | None:
+    """The file's ``light_level``, checked (CaptureError naming the file when malformed); None when it has none."""
+    level = data.get("light_level")
+    if level is None:
+        return None
+    try:
+        medians = np.asarray(level["gel_median"], dtype=float)
+        exposure, gain = float(level["exposure_ms"]), float(level["gain"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CaptureError(f"{path}: not a valid LED file ('light_level': {exc})") from None
+    if medians.shape != (n_leds, 3) or not np.all(np.isfinite(medians)):
+        raise CaptureError(f"{path}: not a valid LED file ('light_level.gel_median' must hold {n_leds} x 3 numbers)")
+    return {"gel_median": medians.tolist(), "exposure_ms": exposure, "gain": gain}
 
 
 def _not_fitted(data: dict, path: Path, n_leds: int) -> tuple[int, ...]:

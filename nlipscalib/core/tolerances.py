@@ -748,6 +748,15 @@ within 0.25 % (median), 0.9 % (95th percentile), 1.9 % at worst; a group aged to
 LED_BRIGHTNESS_CHANGE = 0.07
 """... and an LED whose share over its group's median strays by more than this fraction is named on its own (the same
 21 pairs: 0.4 % median, 1.7 % 95th percentile, 4.2 % at worst)."""
+LED_OVERALL_CHANGE = 0.03
+"""... and the light of all LEDs alike (:func:`nlipscalib.core.led_change.overall_brightness_ratio`: the median LED's
+ratio of its median over the gel's pixels above the dark frame) straying from OLD's by more than this fraction is
+named: every LED aged alike, their drive, or the camera's exposure or gain changed, which the shares above cannot see
+(both files gauged to mean Psi = 1). The twin's undeformed dome at 160x120, one bounce, 16 spp, seven noise seeds (42
+ordered pairs): within 0.10 % (median), 0.16 % (95th percentile), 0.25 % at worst (the fitted albedo, which also
+carries the scale: 3.96 % at worst, as it trades against the coating's reflectance); every LED at 0.90 read
+0.898-0.902 against the seven. Kept at the groups' 3 %: a real sensor's LED drive and temperature vary where the
+twin's do not (benchmarks/RESULTS.md, s32-prevbright)."""
 LED_MOVED_MM = 0.6
 """... and an LED whose calibrated position lies farther than this (mm) from OLD's is named as moved (the same 21
 pairs: 0.09 mm median, 0.24 95th percentile, 0.43 at worst; a larger capture repeats closer)."""

@@ -65,7 +65,8 @@ def test_solving_with_an_led_file_that_holds_a_not_fitted_led_says_so_once(tmp_p
 @pytest.fixture(scope="module")
 def twin_captures(tmp_path_factory):
     """Undeformed captures of the twin (160x120, one bounce, 16 spp, sensor noise) under three noise seeds, the
-    second's copy with the red tri-colour group (LEDs 1-4) aged to 0.9, and the first's LED file: (folder, file)."""
+    second's copy with the red tri-colour group (LEDs 1-4) aged to 0.9 and one with every LED at 0.9, and the first's
+    LED file: (folder, file)."""
     pytest.importorskip("mitsuba")
     from nlipscalib.core import load_press
     from nlipscalib.sim.press import render_press
@@ -77,6 +78,7 @@ def twin_captures(tmp_path_factory):
     for seed in (7, 8, 9):
         render_press(scene, None, root / f"seed{seed}", seed=seed)
     dimmed_copy(load_press(root / "seed8"), root / "seed8_aged", np.where(np.arange(12) < 4, 0.9, 1.0))
+    dimmed_copy(load_press(root / "seed8"), root / "seed8_all_dimmed", 0.9)
     first = root / "seed7.json"
     assert main(["--no-progress", "calibrate-leds", str(root / "seed7"), "--out", str(first)]) == 0
     return root, first
@@ -122,10 +124,26 @@ def test_clean_captures_against_an_earlier_calibration_raise_no_alarm(twin_captu
         assert warnings == [] and written["previous"]["changes"] == [], warnings
         assert written["previous"]["file"] == str(previous)
         assert np.nanmax(np.abs(np.log(written["previous"]["brightness"]))) < 0.04
+        assert abs(written["previous"]["overall_brightness"] - 1) < 0.01  # the twin's seeds: within 0.23 %
     assert (
         json.loads(replaced.read_text(encoding="utf-8"))["leds"]
         != json.loads(first.read_text(encoding="utf-8"))["leds"]
     )  # seed 9's, replaced
+
+
+def test_every_led_dimmed_alike_is_named_against_the_previous_calibration(twin_captures, tmp_path, capsys, caplog):
+    """Every LED at 0.9 since the earlier calibration (aged alike, or the exposure shortened unrecorded): each LED's
+    share of the light is unchanged and both files are gauged to mean Psi = 1, so without the light level recorded
+    nothing was said. Now one warning names it, no group nor LED, and the closing line gives the ratio."""
+    root, first = twin_captures
+    assert len(json.loads(first.read_text(encoding="utf-8"))["light_level"]["gel_median"]) == 12
+    warnings, written = _calibrated_against(root / "seed8_all_dimmed", first, tmp_path / "dim.json", caplog)
+    (change,) = written["previous"]["changes"]
+    assert warnings == [change]
+    assert change.startswith(f"all LEDs together give 0.90 times the light they gave in {first}"), change
+    assert "every LED aged alike" in change
+    assert abs(written["previous"]["overall_brightness"] - 0.9) < 0.01
+    assert f"against {first}: all LEDs together x0.9" in capsys.readouterr().err
 
 
 def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_captures, tmp_path, capsys, monkeypatch):

@@ -7,9 +7,16 @@ import dataclasses
 import numpy as np
 import pytest
 
+from nlipscalib.core import load_press
 from nlipscalib.core.errors import CaptureError
-from nlipscalib.core.led_change import check_previous_sensor, compare_calibrations, led_brightness_ratios
-from nlipscalib.core.ledfile import LedFile
+from nlipscalib.core.led_change import (
+    check_previous_sensor,
+    compare_calibrations,
+    led_brightness_ratios,
+    light_level,
+    overall_brightness_ratio,
+)
+from nlipscalib.core.ledfile import LedFile, read_led_file, save_leds
 from nlipscalib.core.sensor_record import describe_sensor
 from tests.solver import synth
 
@@ -21,8 +28,14 @@ def _scaled(leds, gains):
     )
 
 
-def _file(leds, not_fitted=()):
-    return LedFile(tuple(leds), describe_sensor(synth.camera(), leds), tuple(not_fitted))
+def _file(leds, not_fitted=(), level=None):
+    return LedFile(tuple(leds), describe_sensor(synth.camera(), leds), tuple(not_fitted), light_level=level)
+
+
+def _level(gain=1.0, exposure_ms=10.0):
+    """A light level of 12 LEDs (:func:`light_level`'s record), each LED's ``gain`` times a fixed one."""
+    base = np.linspace(0.2, 0.4, 36).reshape(12, 3)
+    return {"gel_median": (base * np.reshape(gain, (-1, 1))).tolist(), "exposure_ms": exposure_ms, "gain": 1.0}
 
 
 def test_brightness_ratios_are_relative_to_the_median_led_whatever_the_gauge():
@@ -74,3 +87,60 @@ def test_a_previous_file_of_another_sensor_or_of_none_is_refused():
         check_previous_sensor(other, "old.json", ours, "ref")
     with pytest.raises(CaptureError, match="records no sensor"):
         check_previous_sensor(LedFile(leds, None), "old.json", ours, "ref")
+
+
+def test_light_level_is_the_gels_median_above_the_dark_frame_and_scales_with_the_leds(tmp_path):
+    """Every LED image 0.9 times as bright (aged alike, or a shorter exposure) reads 0.9, though the calibrations'
+    gauge (mean Psi = 1) gives both the same Psi."""
+    first = load_press(synth.make_press(tmp_path / "a", kind="none"))
+    dimmed = load_press(synth.make_press(tmp_path / "b", kind="none", lin_hook=lambda lin: 0.9 * lin))
+    level, dim = light_level([first]), light_level([dimmed])
+    gel = np.isfinite(first.reference.depth)
+    assert np.allclose(level["gel_median"][2], np.median(first.linear_led_images[2][gel], axis=0))
+    assert level["exposure_ms"] == first.response.exposure_ms and level["gain"] == first.response.gain
+    assert overall_brightness_ratio(level, dim) == pytest.approx(0.9, abs=1e-3)
+    assert overall_brightness_ratio(level, light_level([first, dimmed])) == pytest.approx(0.95, abs=1e-3)
+    swapped = light_level([first], order=[1, 0] + list(range(2, 12)))  # LEDs 1 and 2 fitted to each other's image
+    assert swapped["gel_median"][0] == level["gel_median"][1] and swapped["gel_median"][2] == level["gel_median"][2]
+
+
+def test_all_leds_dimmed_alike_are_one_change_the_shares_cannot_see():
+    leds = synth.ring_leds(jitter=3)
+    compared = compare_calibrations(_file(leds, level=_level()), "old.json", leds, level=_level(0.9))
+    (line,) = compared["changes"]
+    assert line.startswith("all LEDs together give 0.90 times the light they gave in old.json"), line
+    assert "every LED aged alike" in line
+    assert compared["overall_brightness"] == pytest.approx(0.9)
+    assert compare_calibrations(_file(leds, level=_level()), "old.json", leds, level=_level(1.02))["changes"] == []
+    # one group aged alone: the group's share, not all LEDs (the sum of the 12 went to 0.967)
+    group = np.where(np.arange(12) < 4, 0.9, 1.0)
+    compared = compare_calibrations(_file(leds, level=_level()), "old.json", _scaled(leds, group), level=_level(group))
+    (line,) = compared["changes"]
+    assert line.startswith("LEDs 1-4") and compared["overall_brightness"] == pytest.approx(1.0)
+    # the camera's exposure halved: named as the cause; an older file without a level: not compared
+    (line,) = compare_calibrations(_file(leds, level=_level()), "o", leds, level=_level(0.5, 5.0))["changes"]
+    assert "exposure or gain changed (10 ms at gain 1, now 5 ms at gain 1)" in line, line
+    unknown = compare_calibrations(_file(leds), "old.json", leds, level=_level(0.5))
+    assert unknown["changes"] == [] and unknown["overall_brightness"] is None
+
+
+def test_the_overall_level_leaves_out_the_leds_not_fitted_and_sorts_first():
+    leds = synth.ring_leds(jitter=3)
+    gains = np.full(12, 0.9)
+    gains[3] = 0.0  # a stale frame here: not fitted, not counted
+    compared = compare_calibrations(_file(leds, level=_level()), "old.json", leds, (3,), _level(gains))
+    assert compared["overall_brightness"] == pytest.approx(0.9)
+    moved = list(leds)
+    moved[0] = dataclasses.replace(leds[0], position=tuple(np.add(leds[0].position, (0.8, 0.0, 0.0))))
+    first, led1 = compare_calibrations(_file(leds, level=_level()), "old.json", moved, level=_level(0.9))["changes"]
+    assert first.startswith("all LEDs together") and led1.startswith("LED 1 sits")
+
+
+def test_an_led_file_keeps_its_light_level_and_a_malformed_one_is_refused(tmp_path):
+    leds = synth.ring_leds()
+    path = save_leds(tmp_path / "leds.json", leds, {"light_level": _level()})
+    assert read_led_file(path).light_level == _level()
+    assert read_led_file(save_leds(tmp_path / "old.json", leds)).light_level is None
+    bad = save_leds(tmp_path / "bad.json", leds, {"light_level": _level() | {"gel_median": [[1.0, 2.0, 3.0]]}})
+    with pytest.raises(CaptureError, match=r"bad.json: not a valid LED file \('light_level.gel_median' must hold 12"):
+        read_led_file(bad)
