@@ -52,9 +52,9 @@ def _instrument() -> None:
 def _task(tid: int) -> tuple[float, int] | None:
     """CPU (s, user + system) and voluntary context switches of thread ``tid`` of this process, or None if gone."""
     try:
-        with open(f"/proc/self/task/{tid}/stat") as f:
+        with open(f"/proc/self/task/{tid}/stat", encoding="utf-8", errors="replace") as f:
             fields = f.read().rsplit(")", 1)[1].split()
-        with open(f"/proc/self/task/{tid}/status") as f:
+        with open(f"/proc/self/task/{tid}/status", encoding="utf-8", errors="replace") as f:
             switches = int(f.read().split("voluntary_ctxt_switches:")[1].split()[0])
     except (OSError, IndexError):
         return None
@@ -83,7 +83,7 @@ def _report(out: str) -> None:
     main_cpu = (_task(main) or (float("nan"), 0))[0]
     head = f"{'thread':30s} {'runs':46s} {'start':>7s} {'end':>7s} {'cpu s':>7s}"
     tail = f"main thread {main_cpu:.3f} s CPU; process {user + system:.3f} s; wall {time.monotonic() - _T0:.2f} s"
-    with open(out, "w") if out != "-" else sys.stderr as stream:
+    with open(out, "w", encoding="utf-8") if out != "-" else sys.stderr as stream:
         print("\n".join([head, *lines, tail]), file=stream)
 
 
