@@ -160,7 +160,7 @@ def compare_calibrations(
     if level is not None and previous.light_level is not None:
         overall = overall_brightness_ratio(previous.light_level, level, left_out)
     changes = _overall_change(overall, previous.light_level, level, where)
-    changes += _brightness_changes(ratio, where) + _place_changes(moved, turned, where)
+    changes += _brightness_changes(ratio, where) + _place_changes(moved, turned, where, old, new)
     return {
         "file": str(where),
         "overall_brightness": None if overall is None or overall != overall else overall,
@@ -236,15 +236,55 @@ def _brightness_changes(ratio: np.ndarray, where: str | Path) -> list[tuple[int,
     return changes
 
 
-def _place_changes(moved: np.ndarray, turned: np.ndarray, where: str | Path) -> list[tuple[int, str]]:
-    """(LED, line) of each LED that moved or turned beyond the tolerances since ``where``."""
+def _place_changes(
+    moved: np.ndarray, turned: np.ndarray, where: str | Path, old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
+) -> list[tuple[int, str]]:
+    """(LED, line) of each LED that moved or turned beyond the tolerances since ``where``; two LEDs that each sit
+    where the other did (``old``, ``new``: :func:`~nlipscalib.core.leds.led_arrays` of either calibration) are one
+    line, naming an exchange.
+
+    Why the exchange: two LED images captured in each other's place (wiring or the firmware's LED order changed)
+    calibrate each LED at the other's place, as the images show it; said as two LEDs "loosened, bent or replaced"
+    4.6 mm apart it sent a user to the hardware (s32-prevbright's trial with led_01.png and led_02.png exchanged)."""
     # "not within": an LED whose axis has no angle (NaN) for a reason other than being left out is a change
     off = np.isfinite(moved) & (~(moved <= tolerances.LED_MOVED_MM) | ~(turned <= tolerances.LED_TURNED_DEG))
-    return [
+    pairs = _exchanged_pairs(np.flatnonzero(off), old, new)
+    paired = {i for pair in pairs for i in pair}
+    lines = [
+        (
+            int(a),
+            f"LEDs {a + 1} and {b + 1} each sit where the other did in {where} (within {tolerances.LED_MOVED_MM:g} mm"
+            f" / {tolerances.LED_TURNED_DEG:g} deg): their images were captured in each other's place (the LED "
+            "wiring, the controller's LED order or the capture's image order changed since): put the order back, "
+            "or keep this calibration only for captures taken in the new order",
+        )
+        for a, b in pairs
+    ]
+    return lines + [
         (
             int(i),
             f"LED {i + 1} sits {moved[i]:.2f} mm and points {turned[i]:.1f} deg from where it did in {where} (beyond "
             f"{tolerances.LED_MOVED_MM:g} mm / {tolerances.LED_TURNED_DEG:g} deg): loosened, bent or replaced?",
         )
         for i in np.flatnonzero(off)
+        if i not in paired
     ]
+
+
+def _exchanged_pairs(
+    candidates: np.ndarray, old: tuple[np.ndarray, ...], new: tuple[np.ndarray, ...]
+) -> list[tuple[int, int]]:
+    """Pairs (a, b), a < b, of ``candidates`` (LEDs that moved) where each new LED lies within the place
+    tolerances of the other's old one."""
+
+    def near(i: int, j: int) -> bool:  # the new LED i where the old LED j was
+        gap, turn = led_offsets(old[0][[j]], old[1][[j]], new[0][[i]], new[1][[i]])
+        return bool(gap[0] <= tolerances.LED_MOVED_MM and turn[0] <= tolerances.LED_TURNED_DEG)
+
+    pairs: list[tuple[int, int]] = []
+    for a in candidates:
+        for b in candidates:
+            taken = any(int(a) in pair or int(b) in pair for pair in pairs)
+            if a < b and not taken and near(a, b) and near(b, a):
+                pairs.append((int(a), int(b)))
+    return pairs

@@ -144,3 +144,17 @@ def test_an_led_file_keeps_its_light_level_and_a_malformed_one_is_refused(tmp_pa
     bad = save_leds(tmp_path / "bad.json", leds, {"light_level": _level() | {"gel_median": [[1.0, 2.0, 3.0]]}})
     with pytest.raises(CaptureError, match=r"bad.json: not a valid LED file \('light_level.gel_median' must hold 12"):
         read_led_file(bad)
+
+
+def test_two_leds_in_each_others_place_are_one_exchange_and_a_moved_led_stays_moved():
+    """led_01.png and led_02.png captured in each other's place calibrate LED 1 at LED 2's place and back: it was
+    said as two LEDs "loosened, bent or replaced" 4.6 mm off. Now one line names the exchange; an LED that moved
+    on its own (LED 7 by 2 mm) is still said as moved."""
+    leds = synth.ring_leds(jitter=3)
+    new = list(leds)
+    new[0], new[1] = leds[1], leds[0]
+    new[6] = dataclasses.replace(leds[6], position=tuple(np.add(leds[6].position, (2.0, 0.0, 0.0))))
+    exchange, moved = compare_calibrations(_file(leds), "old.json", tuple(new))["changes"]
+    assert exchange.startswith("LEDs 1 and 2 each sit where the other did in old.json"), exchange
+    assert "captured in each other's place" in exchange
+    assert moved.startswith("LED 7 sits 2.00 mm"), moved
