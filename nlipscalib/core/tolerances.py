@@ -763,3 +763,10 @@ pairs: 0.09 mm median, 0.24 95th percentile, 0.43 at worst; a larger capture rep
 LED_TURNED_DEG = 4.0
 """... or whose axis turned by more than this (degrees) (the same pairs: 0.57 deg median, 1.76 95th percentile, 2.64
 at worst)."""
+
+GEL_FRAME_SHARE_FOR_DISKS = 0.95
+"""A whole-frame solve with point LEDs whose gel covers less of the frame than this (the camera sees past the gel:
+the dome's base, black corners) and whose LED file holds fitted disks is told once to solve with ``--led-model
+disks`` (:func:`nlipscalib.pipeline.solve.hint_disk_leds`). Why: beside the LEDs the point model misses the light
+cups' light by up to 8.5 % and bent the whole gel's depth (the twin's wide view, 84 % gel: contact depth RMSE 0.084
+mm with points, 0.003 with disks, s32-rimdepth); the gel-filling default view covers the whole frame (share 1.0)."""

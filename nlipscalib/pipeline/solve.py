@@ -400,6 +400,7 @@ def _solve_and_save(
 
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
+    hint_disk_leds(folder, settings, result.report, press.led_images.shape[-3] * press.led_images.shape[-2])
     return result
 
 
@@ -430,6 +431,31 @@ def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str)
     from ..core.capture import load_press
 
     return load_press(folder, led_subset=subset, decode=False)
+
+
+def hint_disk_leds(folder: Path, settings: SolveSettings, report: dict, frame_pixels: int) -> None:
+    """Say once per LED file when a whole-frame solve with its point LEDs sees past the gel (the gel under
+    :data:`~nlipscalib.core.tolerances.GEL_FRAME_SHARE_FOR_DISKS` of the frame) while the file holds fitted disks:
+    ``--led-model disks`` is then the better model (docs/twin.md, "A view beyond the gel"), a flag a user could
+    not know to pass."""
+    from ..core import tolerances
+    from ..core.ledfile import read_led_file
+
+    points = "emitters" not in dict(settings.solver_keywords)
+    if settings.roi is not None or not settings.leds_file or not points:
+        return
+    share = report.get("pixels_solved", frame_pixels) / max(frame_pixels, 1)
+    if share >= tolerances.GEL_FRAME_SHARE_FOR_DISKS or not said_once.first_time(f"disks {settings.leds_file}"):
+        return
+    if read_led_file(settings.leds_file).emitters:
+        log.warning(
+            "%s: the camera sees past the gel (%.0f %% of the frame is gel) and %s holds the LEDs' fitted disks: "
+            "solve with --led-model disks (near the dome's base the point LEDs miss the light, which bends the "
+            "whole gel's depth; the box of --roi auto is not affected)",
+            folder,
+            100 * share,
+            settings.leds_file,
+        )
 
 
 def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:

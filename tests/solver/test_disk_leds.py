@@ -109,3 +109,31 @@ def test_solve_led_model_disks_takes_the_led_files_emitters(rim_sphere, tmp_path
     gt = rim_sphere.ground_truth
     depth = load_reconstruction(out, gt.depth.shape).depth
     assert np.sqrt(np.mean((depth[gt.contact] - gt.depth[gt.contact]) ** 2)) < 0.015
+
+
+def test_a_whole_frame_solve_past_the_gel_with_point_leds_is_told_of_the_files_disks(rim_sphere, tmp_path, caplog):
+    """The rim view's whole frame solved with an LED file's point LEDs bent the depth (above) without a word while
+    the file held the disks that fix it: one warning names the flag, once per file; none for a disk solve, an auto
+    ROI, or a file without disks."""
+    import json
+
+    from nlipscalib.cli import main
+
+    leds = [led.to_dict() for led in rim_sphere.leds]
+    with_disks = tmp_path / "disks.json"
+    with_disks.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": leds}}), encoding="utf-8")
+    points_only = tmp_path / "points.json"
+    points_only.write_text(json.dumps({"leds": leds}), encoding="utf-8")
+    folder = str(rim_sphere.folder)
+
+    def hints(*args: str) -> list[str]:
+        caplog.clear()
+        out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
+        assert main(["--no-progress", "solve", folder, *args, "--no-figures", "--out", str(out)]) == 0
+        return [r.getMessage() for r in caplog.records if "--led-model disks" in r.getMessage()]
+
+    (hint,) = hints("--leds", str(with_disks))
+    assert hint.startswith(f"{folder}: the camera sees past the gel (") and str(with_disks) in hint, hint
+    assert hints("--leds", str(with_disks), "--led-model", "disks") == []
+    assert hints("--leds", str(with_disks), "--roi", "auto") == []
+    assert hints("--leds", str(points_only)) == []
