@@ -313,9 +313,10 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
     return True
 
 
-def _torn_files(out: Path) -> list[str]:
-    """Files of the press in ``out`` that are gone, empty or cut short (sim.dataset_folder.missing_files), said in
-    a warning: the press is then rendered again in place of them.
+def _torn_files(out: Path) -> dict[str, str]:
+    """Files of the press in ``out`` that are gone, empty, cut short or changed in size since it was written
+    (sim.dataset_folder.missing_files), each with its problem, said in a warning: the press is then rendered again
+    in place of them.
 
     Why: writes are atomic but not synced, so a power cut soon after a render was published can leave a file empty
     or cut short; "already rendered ..., nothing to do" kept it at every run, and the solve failed on it."""
@@ -323,7 +324,7 @@ def _torn_files(out: Path) -> list[str]:
 
     torn = missing_files(out)
     if torn:
-        log.warning("%s: %s; rendering it again", out, described_missing(out, torn))
+        log.warning("%s: %s; rendering it again", out, described_missing(torn))
     return torn
 
 

@@ -39,6 +39,7 @@ from .errors import CaptureError, ShapeError
 from .imageio import png_size, read_png_bytes, write_png16
 from .leds import Led, Leds
 from .prefetch import prefetch_images
+from .press_checksums import write_checksums
 from .press_folders import (
     find_presses,
     is_incomplete_press,
@@ -292,6 +293,8 @@ def write_press(
         jobs += [(write_png16, tmp / led_image_name(i), img) for i, img in enumerate(led_images)]
         jobs += [(obj.save, tmp / name) for obj, name in ((reference, REFERENCE_FILE), (ground_truth, GT_FILE)) if obj]
         in_threads(jobs)
+        # before meta.json, inside the folder's atomic write: a published press always has its record
+        write_checksums(tmp, listed_files(meta))
         write_json(tmp / META_FILE, meta)  # last: its presence marks a complete folder
     return Path(folder)
 

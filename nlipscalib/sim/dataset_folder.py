@@ -19,11 +19,12 @@ from .scene import SceneConfig
 log = logging.getLogger(__name__)
 
 
-def is_complete(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = False) -> bool:
-    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there;
-    with ``overwrite`` also rendered by this installation's twin code and renderer (the others are rendered again)."""
+def is_complete(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = False, verify: bool = False) -> bool:
+    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there
+    and unchanged since it was written (:func:`missing_files`; with ``verify`` every byte of it); with ``overwrite``
+    also rendered by this installation's twin code and renderer (the others are rendered again)."""
     folder = out / job.name
-    if not is_press_folder(folder) or not same_spec(scene, job, out) or missing_files(folder):
+    if not is_press_folder(folder) or not same_spec(scene, job, out) or missing_files(folder, verify):
         return False
     return not (overwrite and rendered_elsewhere_in(folder))
 
@@ -34,23 +35,27 @@ def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
     return _recorded_hash(out / job.name) == _expected_hash(scene, job)
 
 
-def missing_files(folder: Path) -> list[str]:
-    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered), empty or cut short
-    (core.file_checks); [] when whole, or when meta.json cannot say (its format is for the commands that load the
-    press to judge).
+def missing_files(folder: Path, verify: bool = False) -> dict[str, str]:
+    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered), empty, cut short
+    (core.file_checks) or of another size than its checksums.json records, and with ``verify`` of other content
+    (core.press_checksums), each with its problem in a few words; {} when whole, or when meta.json cannot say (its
+    format is for the commands that load the press to judge).
 
     Why empty or cut short ones: no file a render writes is either, and that is what a power cut soon after the
     press was published leaves (its folder renamed into place, its files' data not yet on the disk: the writes are
     atomic, not synced). Such a press was "already there" at every run; the commands reading it named the file,
-    and only deleting the folder by hand rendered it again. Only the ends of each file are read (~10-20 us a file)."""
-    from ..core.file_checks import unusable_files
+    and only deleting the folder by hand rendered it again. Only the ends of each file are read (~10-20 us a file),
+    and its size compared with the record (one small JSON file a press). Why the size and content: a file damaged
+    inside, or another press's image copied over it, is whole at its ends; the press was kept, and failed late
+    (a solve, training) or never."""
+    from ..core.press_checksums import press_file_problems
     from ..core.press_meta import listed_files
 
     try:
         names = listed_files(json.loads((folder / META_FILE).read_bytes()))
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return []
-    return unusable_files(folder, names)
+        return {}
+    return press_file_problems(folder, names, verify)
 
 
 def torn_own_meta(scene: SceneConfig, job: PressJob, out: Path) -> str | None:
@@ -68,12 +73,11 @@ def torn_own_meta(scene: SceneConfig, job: PressJob, out: Path) -> str | None:
     return problem.removeprefix(f"{out / job.name / META_FILE}: ")
 
 
-def described_missing(folder: Path, names: list[str], most: int = 3) -> str:
-    """``names`` (:func:`missing_files` of ``folder``) in words: "led_02.png missing, led_05.png cut short (no PNG
-    end chunk) and 2 more"."""
-    from ..core.file_checks import described_problems
-
-    return described_problems(folder, names, most)
+def described_missing(problems: dict[str, str], most: int = 3) -> str:
+    """``problems`` (:func:`missing_files`) in words: "led_02.png missing, led_05.png cut short (no PNG end chunk)
+    and 2 more"."""
+    said = [f"{name} {problem}" for name, problem in list(problems.items())[:most]]
+    return ", ".join(said) + (f" and {len(problems) - most} more" if len(problems) > most else "")
 
 
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:

@@ -4,7 +4,9 @@ resumable, from several processes at once.
 A press whose folder is complete is never rendered again, and interrupted writes leave only ``.tmp-*``
 folders, which are cleaned before the run. A press folder without meta.json (a partial copy, a
 deleted file) is incomplete: the process that claims the press removes it and renders it again; so is
-one that lost a file its meta.json lists (an image, reference.npz, gt.npz), rendered again in its place.
+one that lost a file its meta.json lists (an image, reference.npz, gt.npz), or whose file is cut short or changed
+since it was written (its size, with ``verify`` its CRC-32, against the press's checksums.json), rendered again in
+its place.
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ def run_dataset(
     progress: bool = True,
     overwrite: bool = False,
     stale_s: float = CLAIM_STALE_S,
+    verify: bool = False,
 ) -> dict:
     """Render every job not yet done into ``out``; returns {"rendered", "skipped", "failed"} lists.
 
@@ -96,13 +99,15 @@ def run_dataset(
     overwrite : re-render presses whose folder was made from a different spec (else that is an error)
     stale_s : seconds without heartbeat after which another process's claim is taken over (every process
         rendering into ``out`` must use the same: keep the default, :data:`nlipscalib.core.claims.CLAIM_STALE_S`)
+    verify : read every byte of each finished press's files and compare their CRC-32 with its checksums.json (a
+        press that differs is rendered again); else their ends and sizes only (core.press_checksums)
     """
     out = Path(out)
     if workers < 0:
         raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
     with said_once.scope():  # each call warns of older renders again; inside a command, once with its own check
         check_existing(scene, jobs, out, overwrite)
-    todo = [j for j in jobs if not is_complete(scene, j, out, overwrite)]
+    todo = [j for j in jobs if not is_complete(scene, j, out, overwrite, verify)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:
         return result
@@ -119,7 +124,7 @@ def run_dataset(
         total=len(jobs), initial=len(result["skipped"]), unit="press", desc="rendering", enabled=progress
     ) as bar:
         if workers == 1:
-            _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
+            _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s, verify), result, bar)
         else:
             with ProcessPoolExecutor(
                 workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
@@ -127,7 +132,7 @@ def run_dataset(
 
                 def submit(job: PressJob) -> Future:
                     with sigint_held():  # a render process it starts never sees Ctrl-C (_worker_init)
-                        return pool.submit(_render_job, scene, job, out, overwrite, stale_s)
+                        return pool.submit(_render_job, scene, job, out, overwrite, stale_s, verify)
 
                 try:
                     _rounds(todo, submit, result, bar, pool=True)
@@ -234,7 +239,9 @@ def _rounds(
         todo = busy
 
 
-def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, stale_s: float) -> tuple[str, object]:
+def _render_job(
+    scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, stale_s: float, verify: bool = False
+) -> tuple[str, object]:
     """Worker body: claim, render, release. Returns (status, detail); errors must not kill the pool.
 
     status is "rendered", "skipped" (finished meanwhile by another process), "busy" (another live
@@ -248,7 +255,7 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
         with claim(out / job.name, stale_s=stale_s) as mine:
             if not mine:
                 return "busy", None
-            if is_complete(scene, job, out, overwrite):
+            if is_complete(scene, job, out, overwrite, verify):
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
             folder = out / job.name
@@ -257,14 +264,14 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
                 torn = torn_own_meta(scene, job, out)
                 if not torn and not overwrite and not same_spec(scene, job, out):
                     return "changed", changed_error(scene, job, out)
-                missing = [] if torn else missing_files(folder)
+                missing = {} if torn else missing_files(folder, verify)
                 if torn or missing:
                     # torn: its own render (dataset.json lists it), so made again as a torn image is
                     said = f"{META_FILE} damaged ({torn}; the dataset's own press)" if torn else None
-                    said = said or described_missing(folder, missing)
+                    said = said or described_missing(missing)
                     busy = live_claim_inside(folder)
                     if busy:
-                        short = said if torn else described_missing(folder, missing, most=1)
+                        short = said if torn else described_missing(missing, most=1)
                         return "failed", f"{folder}: {short}, but {busy}; run again when it is done"
                     results = results_inside(folder)
                     log.warning(

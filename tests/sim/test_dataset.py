@@ -447,6 +447,107 @@ def test_a_press_whose_meta_json_is_cut_short_is_rendered_again_when_the_dataset
     assert f"{meta}: not valid JSON" in err and "the press folder is damaged" in err and "Traceback" not in err
 
 
+def _checksummed_render(calls):
+    """The stand-in renderer, each press with its checksums.json as core.capture.write_press writes it."""
+    from nlipscalib.core.press_checksums import write_checksums
+    from nlipscalib.core.press_meta import listed_files
+
+    whole = _whole_render(calls)
+
+    def render(scene, job, out, overwrite=False):
+        whole(scene, job, out, overwrite)
+        folder = out / job.name
+        write_checksums(folder, listed_files(json.loads((folder / "meta.json").read_bytes())))
+
+    return render
+
+
+def _flip_inside_member(path):
+    """One byte of the first member's deflated data in the .npz at ``path`` changed: the archive keeps its size,
+    its ends and its directory (a bad disk block, a bad copy); only the member's inflating or CRC-32 tells."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        info = archive.infolist()[0]
+    data = bytearray(path.read_bytes())
+    name_length, extra_length = (
+        int.from_bytes(data[info.header_offset + at : info.header_offset + at + 2], "little") for at in (26, 28)
+    )
+    start = info.header_offset + 30 + name_length + extra_length
+    data[start + info.compress_size // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _other_whole_png() -> bytes:
+    """A whole PNG of another size than the stand-in's: another press's image copied over one."""
+    import cv2
+
+    return cv2.imencode(".png", np.full((8, 8), 7, np.uint8))[1].tobytes()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "deleted", "another image copied over it"])
+def test_a_finished_press_whose_file_changed_is_rendered_again_alone_and_named(
+    tmp_path, monkeypatch, capsys, caplog, damage
+):
+    """A rerun judged a finished press by its files' ends only: another whole image copied over one of them (a
+    user tidying up, a copy gone wrong) was "already there" at every run, and its press trained or solved on the
+    wrong image. Now each file's size is compared with the press's checksums.json: that press alone is rendered
+    again, said in one line naming the file; an untouched rerun renders nothing and reads no file's content."""
+    from nlipscalib.cli import main
+    from nlipscalib.core import press_checksums
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _checksummed_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "3"]
+    assert main(args) == 0 and calls == ["reference", "press_0001", "press_0002", "press_0003"]
+    path = out / "press_0002" / "led_01.png"
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[:-20])
+        said = "led_01.png cut short (no PNG end chunk)"
+    elif damage == "deleted":
+        path.unlink()
+        said = "led_01.png missing"
+    else:
+        path.write_bytes(_other_whole_png())
+        said = f"led_01.png changed since it was written ({len(_other_whole_png())} bytes, checksums.json records "
+        said += f"{len(_WHOLE_PNG)})"
+    calls.clear()
+    capsys.readouterr()
+    read, crc32 = [], press_checksums.file_crc32  # the files whose every byte is read
+    monkeypatch.setattr(press_checksums, "file_crc32", lambda p: read.append(p) or crc32(p))
+    monkeypatch.setattr(press_checksums, "damage_inside", lambda p: pytest.fail(f"{p} read without --verify"))
+    assert main(args) == 0 and calls == ["press_0002"]
+    assert f"{out / 'press_0002'}: {said}; rendering it again" in caplog.text
+    assert f"{out}: 1 rendered, 3 already there, 0 failed" in capsys.readouterr().err.splitlines()
+    assert read and {p.parent.name for p in read} == {"press_0002"}  # its new record written, nothing else read
+    calls.clear()
+    read.clear()
+    assert main(args) == 0 and calls == [] and read == []  # whole again: nothing rendered, no content read
+
+
+def test_a_file_changed_inside_at_its_size_is_rendered_again_with_verify(tmp_path, monkeypatch, capsys, caplog):
+    """A bad disk block or copy inside a file keeps its size and its ends: a rerun keeps the press (it reads no
+    image), ``--verify`` compares every file's CRC-32 with the press's checksums.json and renders that press
+    again. A press without the record (an older nlipscalib's) is verified by its formats' own checksums."""
+    from nlipscalib.cli import main
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _checksummed_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0
+    for press in ("press_0001", "press_0002"):
+        _flip_inside_member(out / press / "gt.npz")
+    (out / "press_0001" / "checksums.json").unlink()  # as an older nlipscalib wrote it
+    calls.clear()
+    assert main(args) == 0 and calls == []
+    assert main([*args, "--verify"]) == 0 and calls == ["press_0001", "press_0002"]
+    assert "press_0001: gt.npz damaged inside (member a.npy: " in caplog.text
+    said = "gt.npz changed since it was written (its CRC-32 is not the one checksums.json records)"
+    assert f"press_0002: {said}; rendering it again" in caplog.text
+    calls.clear()
+    assert main([*args, "--verify"]) == 0 and calls == []
+
+
 def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
     """Rendering it again swapped the whole folder away under a running `nlips solve` (its result went with it,
     said by nothing but "led_02.png missing"): now the press waits for the next run, like an incomplete one."""

@@ -1,0 +1,152 @@
+"""What a press folder's checksums.json costs (core.press_checksums): to write, to check on a rerun, and with
+``--verify``; and the whole ``nlips dataset`` rerun of a finished folder, against another checkout.
+
+In process, on each press folder given (e.g. the 640x480 bench renders):
+
+- the candidate hashes over the folder's files in memory (zlib's CRC-32, SHA-1, SHA-256, BLAKE2b-128): the choice;
+- ``write_checksums`` (what each render or capture adds; its files are in the page cache, just written);
+- the rerun's check of the folder's listed files: the ends only (``unusable_files``, before this), the ends and the
+  sizes (``press_file_problems``, every rerun now) and every byte (``verify=True``).
+
+With ``--spec SPEC --out DIR [--before-out DIR --against CHECKOUT]``: the process wall and user+sys CPU of
+``nlips dataset SPEC --out DIR --no-progress`` on a finished folder (nothing to render), alternating with the other
+checkout on its own folder (each side's folder rendered by its own code, so neither warns of the other's renders),
+and ``--verify`` too. Every process runs from a temporary folder with its own ``PYTHONPATH``, bytecode cache and
+``NLIPS_CACHE_DIR``.
+
+Run: .venv/bin/python benchmarks/bench_press_checksums.py PRESS... [--repeats 7]
+     [--spec S --out D [--before-out D2 --against CHECKOUT] [--pairs 7]]
+Prints a Markdown table; the results are in benchmarks/RESULTS.md (s33-datacheck).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import zlib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from nlipscalib.core.file_checks import unusable_files  # noqa: E402
+from nlipscalib.core.press_checksums import press_file_problems, write_checksums  # noqa: E402
+from nlipscalib.core.press_meta import META_FILE, listed_files  # noqa: E402
+
+HASHES = {
+    "crc32 (zlib)": lambda data: zlib.crc32(data),
+    "sha1": lambda data: hashlib.sha1(data).digest(),
+    "sha256": lambda data: hashlib.sha256(data).digest(),
+    "blake2b-128": lambda data: hashlib.blake2b(data, digest_size=16).digest(),
+}
+
+
+def _ms(fn, repeats: int) -> str:
+    """Median [min-max] of ``fn()`` in ms over ``repeats`` runs after one warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return f"{statistics.median(times):.2f} [{min(times):.2f}-{max(times):.2f}]"
+
+
+def in_process(folders: list[Path], repeats: int, scratch: Path) -> None:
+    print("| press | MB | what | ms a press |\n|---|---|---|---|")
+    for folder in folders:
+        _one_folder(folder, repeats, scratch / folder.name)
+
+
+def _one_folder(folder: Path, repeats: int, copy: Path) -> None:
+    """The table's rows for ``folder``, checked on ``copy`` (its listed files and meta.json, with a record)."""
+    names = listed_files(json.loads((folder / META_FILE).read_bytes()))
+    datas = [(folder / n).read_bytes() for n in names]
+    size = sum(map(len, datas)) / 1e6
+    rows = {f"{label} (in memory)": lambda f=fn: [f(d) for d in datas] for label, fn in HASHES.items()}
+    copy.mkdir()
+    for name in [*names, META_FILE]:
+        (copy / name).write_bytes((folder / name).read_bytes())
+    rows["write_checksums (read back + CRC-32)"] = lambda: write_checksums(copy, names)
+    rows["rerun before: ends (unusable_files)"] = lambda: unusable_files(copy, names)
+    rows["rerun now: ends + sizes"] = lambda: press_file_problems(copy, names)
+    rows["--verify: ends + sizes + CRC-32"] = lambda: press_file_problems(copy, names, verify=True)
+    for label, fn in rows.items():
+        print(f"| {folder.name} | {size:.1f} | {label} | {_ms(fn, repeats)} |")
+
+
+def _command(checkout: Path, spec: str, out: str, extra: list[str], side: str) -> tuple[float, float, int]:
+    """(wall s, user+sys s, exit status) of one ``nlips dataset`` process run from ``checkout``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(
+        PYTHONPATH=str(checkout),
+        PYTHONPYCACHEPREFIX=f"/tmp/bench-checksums-pyc-{side}",
+        NLIPS_CACHE_DIR=f"/tmp/bench-checksums-cache-{side}",
+    )
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    rc = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "dataset", spec, "--out", out, "--no-progress", *extra],
+        cwd=tempfile.gettempdir(),
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    ).returncode
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return wall, cpu, rc
+
+
+def reruns(args: argparse.Namespace) -> None:
+    sides = [("now", ROOT, args.out, [])]
+    if args.against:
+        sides.append(("before", Path(args.against), args.before_out, []))
+    sides.append(("now --verify", ROOT, args.out, ["--verify"]))
+    times = {label: [] for label, *_ in sides}
+    for label, checkout, out, extra in sides:  # warm-up: bytecode caches, the page cache
+        _command(checkout, args.spec, out, extra, label.split()[0])
+    for _ in range(args.pairs):
+        for label, checkout, out, extra in sides:
+            wall, cpu, rc = _command(checkout, args.spec, out, extra, label.split()[0])
+            if rc != 0:
+                raise SystemExit(f"{label}: exit {rc}")
+            times[label].append((wall, cpu))
+    print(f"\n| rerun of a finished folder (n={args.pairs}, interleaved) | wall s | user+sys s |\n|---|---|---|")
+    for label, runs in times.items():
+        walls, cpus = [w for w, _ in runs], [c for _, c in runs]
+        print(
+            f"| {label} | {statistics.median(walls):.2f} [{min(walls):.2f}-{max(walls):.2f}] | "
+            f"{statistics.median(cpus):.2f} [{min(cpus):.2f}-{max(cpus):.2f}] |"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("presses", nargs="*", type=Path, help="press folders (read only: copied into a scratch folder)")
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--spec", help="dataset spec of the finished folder --out")
+    parser.add_argument("--out", help="a finished dataset folder this checkout rendered")
+    parser.add_argument("--before-out", help="the same dataset rendered by the --against checkout")
+    parser.add_argument("--against", help="another checkout (git worktree add --detach DIR REV)")
+    parser.add_argument("--pairs", type=int, default=7)
+    args = parser.parse_args()
+    print(f"load average before: {os.getloadavg()}")
+    if args.presses:
+        with tempfile.TemporaryDirectory(prefix="bench-checksums-") as scratch:
+            in_process(args.presses, args.repeats, Path(scratch))
+    if args.spec:
+        reruns(args)
+    print(f"load average after: {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()
