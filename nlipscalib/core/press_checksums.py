@@ -99,6 +99,13 @@ def press_file_problems(folder: str | Path, names: list[str], verify: bool = Fal
     return problems
 
 
+def described_file_problems(problems: dict[str, str], most: int = 3) -> str:
+    """``problems`` (:func:`press_file_problems`) in words: "led_02.png missing, led_05.png cut short (no PNG end
+    chunk) and 2 more"."""
+    said = [f"{name} {problem}" for name, problem in list(problems.items())[:most]]
+    return ", ".join(said) + (f" and {len(problems) - most} more" if len(problems) > most else "")
+
+
 def _recorded_problem(path: Path, entry: dict, verify: bool) -> str | None:
     """How the file at ``path`` differs from its record ``entry`` (size, then with ``verify`` CRC-32), or None."""
     try:

@@ -43,15 +43,16 @@ def find_presses(root: str | Path) -> list[Path]:
     return presses
 
 
-def missing_capture_files(folder: str | Path) -> list[str]:
-    """Files a press folder's meta.json lists (images, reference, ground truth) that are not there, or are empty or
-    cut short (:func:`.file_checks.file_problem`: what a power cut soon after the folder was published leaves);
-    [] for a whole press.
+def missing_capture_files(folder: str | Path) -> dict[str, str]:
+    """Files a press folder's meta.json lists (images, reference, ground truth) that are not there, are empty or
+    cut short (:func:`.file_checks.file_problem`: what a power cut soon after the folder was published leaves), or
+    are of another size than its checksums.json records (another file copied over one), each with its problem in a
+    few words (:func:`.press_checksums.press_file_problems`); {} for a whole press.
 
     CaptureError (naming meta.json) when meta.json itself is missing or malformed."""
-    from .file_checks import unusable_files
+    from .press_checksums import press_file_problems
 
-    return unusable_files(folder, listed_files(read_meta(Path(folder))))
+    return press_file_problems(folder, listed_files(read_meta(Path(folder))))
 
 
 def no_presses_error(root: str | Path) -> CaptureError:

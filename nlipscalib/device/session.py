@@ -457,16 +457,16 @@ def claim_session(out: str | Path) -> Iterator[None]:
 
 def _damaged(folder: Path) -> str:
     """Why a captured press folder cannot be kept ("" when it is whole): files its meta.json lists are gone
-    (deleted or lost since), empty or cut short (a power cut soon after it was captured), or meta.json itself is
-    unreadable."""
-    from ..core.file_checks import described_problems
+    (deleted or lost since), empty or cut short (a power cut soon after it was captured), of another size than its
+    checksums.json records (another image copied over one), or meta.json itself is unreadable."""
+    from ..core.press_checksums import described_file_problems
     from ..core.press_folders import missing_capture_files
 
     try:
         missing = missing_capture_files(folder)
     except CaptureError as exc:  # meta.json cut short or emptied: "meta.json: not valid JSON", the folder said once
         return str(exc).removeprefix(f"{folder}: ").removeprefix(f"{folder}{os.sep}")
-    return described_problems(folder, missing) if missing else ""
+    return described_file_problems(missing)
 
 
 def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:

@@ -76,8 +76,9 @@ def torn_own_meta(scene: SceneConfig, job: PressJob, out: Path) -> str | None:
 def described_missing(problems: dict[str, str], most: int = 3) -> str:
     """``problems`` (:func:`missing_files`) in words: "led_02.png missing, led_05.png cut short (no PNG end chunk)
     and 2 more"."""
-    said = [f"{name} {problem}" for name, problem in list(problems.items())[:most]]
-    return ", ".join(said) + (f" and {len(problems) - most} more" if len(problems) > most else "")
+    from ..core.press_checksums import described_file_problems
+
+    return described_file_problems(problems, most)
 
 
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:

@@ -266,6 +266,28 @@ def test_resume_captures_again_a_press_whose_files_are_empty_or_cut_short(tmp_pa
     assert file_problem(press / "led_01.png") is None and file_problem(press / "led_02.png") is None
 
 
+def test_resume_captures_again_a_press_with_another_image_copied_over_one(tmp_path, caplog):
+    """Another whole image copied over a captured one (a user tidying up, a copy gone wrong) is whole at its ends:
+    the press was "kept" at every resume, and calibrated on the wrong image. Its size is not the one the press's
+    checksums.json records: it is captured again, the warning naming the file."""
+    from nlipscalib.core.imageio import write_png16
+    from nlipscalib.core.press_checksums import read_checksums
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    press = tmp_path / "s" / "press_0001"
+    shape = load_press(press).led_images.shape[1:]
+    other = write_png16(tmp_path / "other.png", np.zeros(shape, np.uint16)).read_bytes()  # a dark frame, say
+    assert len(other) != read_checksums(press)["led_03.png"]["bytes"]
+    (press / "led_03.png").write_bytes(other)
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert status["reference"] == "kept" and status["press_0002"] == "kept"
+    assert status["press_0001"]["attempts"] == 1
+    said = f"press_0001: led_03.png changed since it was written ({len(other)} bytes, checksums.json records"
+    assert said in caplog.text and "capturing it again" in caplog.text
+    assert (press / "led_03.png").stat().st_size == read_checksums(press)["led_03.png"]["bytes"]
+
+
 def test_resume_captures_again_a_press_whose_meta_json_is_cut_short(tmp_path, caplog):
     """A session's press folder is the session's own capture: its meta.json cut short by a power cut (or emptied)
     is captured again on resume, as a torn image is, not a stop or a kept press."""
