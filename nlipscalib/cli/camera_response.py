@@ -30,6 +30,7 @@ if TYPE_CHECKING:  # named in hints only: imported when a bracket is taken
     import numpy as np
 
     from ..device.additivity import AdditivityFrames
+    from ..device.bracket_times import TimesEstimate
     from ..device.camera import FrameSource
     from ..device.response_fit import ResponseFit
 
@@ -45,6 +46,9 @@ ADDITIVITY_PARTNERS = (1, 0.5)
 """The LEDs lit apart and with --led for the additivity check (``device.additivity``), as offsets from it in the
 board's order (wrapping): whole numbers of LEDs, or fractions of the board's count: the next LED and the one
 halfway round, so that the pairs light pixels alike (neighbours on a ring) and unalike (opposite LEDs)."""
+SHOWN_MOVE = 0.01
+"""A --bracket folder's estimated time is named in the line when it moved from the one named by more than this
+(the others moved by the estimate's noise)."""
 DarkFrame = tuple
 """A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
 None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
@@ -557,7 +561,8 @@ def _fit_and_write(
     from ..report.camera_response import response_figure
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
-    fit = fit_response(frames, exposures, source)
+    estimate = _estimated(frames, exposures, source) if args.bracket and shots is None else None
+    fit = fit_response(frames, estimate.estimated_ms if estimate and estimate.used else exposures, source)
     fit, additivity = _pinned(fit, shots, source, args.bracket)
     own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -577,6 +582,7 @@ def _fit_and_write(
         "exposure_ratio_error": round(fit.ratio_error, 6),
         "dark_median_code": dark_code,
         "additivity": additivity,
+        "exposures_estimated": None if estimate is None else _estimate_record(estimate),
         "monotonic": {"max_dip": round(fit.max_dip, 6), "flattened": fit.max_dip > 0},
         "software_version": __version__,
     }
@@ -595,6 +601,40 @@ def _fit_and_write(
         f"`nlips capture --camera-response {out}`"
     )
     return 0
+
+
+def _estimated(frames: list, exposures: Sequence[float], source: str) -> TimesEstimate | None:
+    """A --bracket folder's times estimated from its frames (``device.bracket_times``), for a folder without the
+    LED pairs that would check the curve: said in one line when they differ from those named enough to be fitted
+    at (a camera that rounds its exposures to steps of its own without a word)."""
+    from ..device.bracket_times import estimate_times
+
+    estimate = estimate_times(frames, exposures, source)
+    if estimate is not None and estimate.used:
+        moved = [
+            f"{n:g} -> {e:.4g}"
+            for n, e in sorted(zip(estimate.named_ms, estimate.estimated_ms, strict=True))
+            if abs(e / n - 1) > SHOWN_MOVE
+        ]
+        print(
+            f"{source}: its frames' light grows otherwise than the times named (a step {estimate.largest:.1%} off): "
+            f"the camera took some exposures at times of its own (a shutter table: 1/60 s for 16 ms); the curve is "
+            f"fitted at the times its frames say ({', '.join(moved)} ms, their steps' median ratio kept as named; "
+            f"provenance.exposures_estimated)",
+            file=sys.stderr,
+        )
+    return estimate
+
+
+def _estimate_record(estimate: TimesEstimate) -> dict:
+    """What the response file records of a --bracket folder's estimated times (docs/formats.md)."""
+    return {
+        "used": estimate.used,
+        "times_ms": [round(t, 6) for t in estimate.estimated_ms],
+        "step_errors": [None if e is None else round(e, 6) for e in estimate.step_errors],
+        "largest_step_error": round(estimate.largest, 6),
+        "rounds": estimate.rounds,
+    }
 
 
 def _pinned(

@@ -706,6 +706,23 @@ taking one exposure 3 / 4 / 6 % off the asked shows 2.7 / 3.8 / 5.5 % (benchmark
 RESPONSE_RATIO_LOW_CODE = 32
 """Pixels whose merged light puts them below this 8-bit code in the darker frame of a pair are left out of the
 pair's ratio (:data:`RESPONSE_RATIO_ERROR`): at the dark end a code's light is a few codes' rounding and noise."""
+RESPONSE_ESTIMATE_LOW_CODE = 64
+"""Pixels whose merged light puts them below this 8-bit code in the darker frame of a pair are left out of the
+pair's ratio when a bracket folder's times are estimated (:mod:`nlipscalib.device.bracket_times`): higher than
+:data:`RESPONSE_RATIO_LOW_CODE`, because an estimate is fitted at again and again, and the dark codes' bias (noise
+clipped at black) would add up over the rounds (a noisy synthetic right bracket from 0.125 ms: steps 1-4 % off with
+32, within 0.9 % with 64; benchmarks/RESULTS.md, s33-bracket)."""
+RESPONSE_ESTIMATE_ROUNDS = 4
+"""Most rounds of fit and ratio update when a bracket folder's times are estimated
+(:mod:`nlipscalib.device.bracket_times`): the emulated 1/n s shutter bracket's steps come within 0.5 % in 3-4 (the
+curve mostly in 2); more rounds let a right bracket's dark steps drift with their bias (s33-bracket)."""
+RESPONSE_ESTIMATE_STEP = 0.015
+"""A bracket folder's times estimated from its frames are used instead of those named (said in a line) when a step
+between consecutive frames the estimate judges differs from the named step by more than this fraction
+(:mod:`nlipscalib.device.bracket_times`). Right brackets' estimates stay within 0.0001-0.0086 of the named steps
+(the emulated sensor's four curves, 64x48 1 spp and 160x120 4 spp; a noisy synthetic 64x48 one, five seeds); a 1/n s
+shutter table's 4.2 % step is estimated as 3.7-4.3 % (s33-bracket). Within it the named times are kept: the curve
+bit for bit as before."""
 RESPONSE_BLACK_CODES = 2.0
 """Most 8-bit codes a bracket's dark frame (every LED off, the shortest exposure) may read above the black level
 given, its median over the frame, before the bracket is refused as from a camera that adds a black level
