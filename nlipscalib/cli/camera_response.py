@@ -114,7 +114,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured; "
         "optionally dark.png, every LED off (checked against --black-level), and FOLDER/additivity/ of LEDs lit "
         "apart and together at one exposure (dark.png, led_1.png, led_2.png, led_1+2.png, ...: they check the "
-        "curve's power, as the command's own frames do)",
+        "curve's power, as the command's own frames do); without it the times are estimated from the images and "
+        "the curve fitted at them when one step is more than 1.5%% off the named (a camera rounding them to a 1/n s "
+        "table), said in a line",
     )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
@@ -647,6 +649,7 @@ def _pinned(
 
     import numpy as np
 
+    from ..core.tolerances import RESPONSE_ADDITIVITY_COMMON, RESPONSE_ADDITIVITY_ERROR
     from ..device.additivity import pin_power
     from ..device.bracket_folder import PAIRS_FOLDER
 
@@ -676,8 +679,19 @@ def _pinned(
         "error": round(check.before, 6),
         "power": round(check.power, 6),
         "error_after": round(check.after, 6),
+        "common": round(check.common, 6),
     }
     if check.power == 1.0:
+        if abs(check.common) > RESPONSE_ADDITIVITY_COMMON:
+            print(
+                f"{source}: with the curve as fitted, LEDs lit together give {1 + check.common:.3f} times their light "
+                f"lit apart in every pair (the median; within the {RESPONSE_ADDITIVITY_ERROR:.1%} allowed, a right "
+                f"camera's within {RESPONSE_ADDITIVITY_COMMON:.1%}): the LEDs "
+                f"{'dim' if check.common < 0 else 'brighten'} each other slightly when lit together (a shared supply), "
+                "or the exposure times are a power of those asked within 0.98-1.02 (the curve then up to ~0.7% off); "
+                "the curve is kept as fitted",
+                file=sys.stderr,
+            )
         return fit, record
     p = check.power
     print(
