@@ -564,7 +564,7 @@ def _fit_and_write(
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
     estimate = _estimated(frames, exposures, source) if args.bracket and shots is None else None
-    fit = fit_response(frames, estimate.estimated_ms if estimate and estimate.used else exposures, source)
+    fit = fit_response(frames, estimate.estimated_ms if estimate is not None and estimate.used else exposures, source)
     fit, additivity = _pinned(fit, shots, source, args.bracket)
     own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -605,14 +605,14 @@ def _fit_and_write(
     return 0
 
 
-def _estimated(frames: list, exposures: Sequence[float], source: str) -> TimesEstimate | None:
+def _estimated(frames: list, exposures: Sequence[float], source: str) -> TimesEstimate:
     """A --bracket folder's times estimated from its frames (``device.bracket_times``), for a folder without the
     LED pairs that would check the curve: said in one line when they differ from those named enough to be fitted
     at (a camera that rounds its exposures to steps of its own without a word)."""
     from ..device.bracket_times import estimate_times
 
     estimate = estimate_times(frames, exposures, source)
-    if estimate is not None and estimate.used:
+    if estimate.used:
         moved = [
             f"{n:g} -> {e:.4g}"
             for n, e in sorted(zip(estimate.named_ms, estimate.estimated_ms, strict=True))

@@ -63,7 +63,7 @@ class TimesEstimate:
         return self.largest > RESPONSE_ESTIMATE_STEP
 
 
-def estimate_times(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], source: str) -> TimesEstimate | None:
+def estimate_times(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], source: str) -> TimesEstimate:
     """The times ``frames`` were taken at, estimated jointly with the camera's curve.
 
     Parameters
@@ -74,7 +74,8 @@ def estimate_times(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], 
 
     Returns
     -------
-    TimesEstimate, or None when fewer than :data:`MIN_JUDGED_STEPS` pairs can be judged
+    TimesEstimate (the times as named, every step None, when fewer than :data:`MIN_JUDGED_STEPS` pairs can be
+    judged: nothing to pin the power by)
 
     Raises
     ------
@@ -96,7 +97,7 @@ def estimate_times(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], 
         errors = ratio_errors(sampled, times, np.broadcast_to(curve, (3, CODES)), RESPONSE_ESTIMATE_LOW_CODE)
         judged = np.isfinite(errors)
         if judged.sum() < MIN_JUDGED_STEPS:
-            return None
+            return TimesEstimate(tuple(named.tolist()), tuple(named.tolist()), (None,) * len(steps), rounds)
         moved = steps + np.log1p(np.where(judged, errors, 0.0))
         power = np.median(moved[judged] / steps_named[judged])  # the power no bracket can see, pinned
         new = np.where(judged, moved / power, steps_named)

@@ -57,7 +57,7 @@ def test_a_step_rounded_to_a_shutter_table_is_estimated_within_a_percent(monkeyp
     (0.13-0.64 % over four curves and three seeds, s33-bracket)."""
     frames = _bracket(monkeypatch, curve, FULL_STOPS, shutter=True)
     estimate = estimate_times(frames, FULL_STOPS, "test")
-    assert estimate is not None and estimate.used
+    assert estimate.used
     true = np.diff(np.log([_on_the_table(ms) for ms in FULL_STOPS]))
     found = np.diff(np.log(estimate.estimated_ms))
     judged = np.array([e is not None for e in estimate.step_errors])
@@ -72,7 +72,7 @@ def test_a_step_rounded_to_a_shutter_table_is_estimated_within_a_percent(monkeyp
 def test_a_right_brackets_times_are_kept_as_named(monkeypatch, exposures):
     frames = _bracket(monkeypatch, "gamma2.2", exposures, shutter=False)
     estimate = estimate_times(frames, exposures, "test")
-    assert estimate is not None and not estimate.used
+    assert not estimate.used
     assert estimate.largest < RESPONSE_ESTIMATE_STEP / 2  # 0.16 / 0.42 %
 
 
@@ -85,4 +85,4 @@ def test_times_a_power_of_the_named_ones_are_not_seen():
         np.rint(255 * np.minimum(light * 0.5 * (ms / 0.5) ** 0.9 / 8, 1) ** (1 / 2.2)).astype(np.uint8) for ms in named
     ]
     estimate = estimate_times(frames, named, "test")
-    assert estimate is not None and not estimate.used and estimate.largest < 0.002
+    assert not estimate.used and estimate.largest < 0.002
