@@ -30,6 +30,7 @@ if TYPE_CHECKING:  # named in hints only: imported when a bracket is taken
     import numpy as np
 
     from ..device.additivity import AdditivityFrames
+    from ..device.bracket_times import TimesEstimate
     from ..device.camera import FrameSource
     from ..device.response_fit import ResponseFit
 
@@ -45,12 +46,17 @@ ADDITIVITY_PARTNERS = (1, 0.5)
 """The LEDs lit apart and with --led for the additivity check (``device.additivity``), as offsets from it in the
 board's order (wrapping): whole numbers of LEDs, or fractions of the board's count: the next LED and the one
 halfway round, so that the pairs light pixels alike (neighbours on a ring) and unalike (opposite LEDs)."""
+SHOWN_MOVE = 0.01
+"""A --bracket folder's estimated time is named in the line when it moved from the one named by more than this
+(the others moved by the estimate's noise)."""
 DarkFrame = tuple
 """A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
 None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from ..core.tolerances import RESPONSE_ESTIMATE_STEP  # constants only: no numpy for --help
+
     p = subparsers.add_parser(
         "calibrate-camera-response",
         help="measure the camera's tone curve from an exposure bracket -> response JSON for --camera-response",
@@ -110,7 +116,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured; "
         "optionally dark.png, every LED off (checked against --black-level), and FOLDER/additivity/ of LEDs lit "
         "apart and together at one exposure (dark.png, led_1.png, led_2.png, led_1+2.png, ...: they check the "
-        "curve's power, as the command's own frames do)",
+        "curve's power, as the command's own frames do); without it the times are estimated from the images and "
+        f"the curve fitted at them when one step is more than {RESPONSE_ESTIMATE_STEP * 100:g}%% off the named (a "
+        "camera rounding them to a 1/n s table), said in a line",
     )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
@@ -557,7 +565,8 @@ def _fit_and_write(
     from ..report.camera_response import response_figure
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
-    fit = fit_response(frames, exposures, source)
+    estimate = _estimated(frames, exposures, source) if args.bracket and shots is None else None
+    fit = fit_response(frames, estimate.estimated_ms if estimate is not None and estimate.used else exposures, source)
     fit, additivity = _pinned(fit, shots, source, args.bracket)
     own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
@@ -577,6 +586,7 @@ def _fit_and_write(
         "exposure_ratio_error": round(fit.ratio_error, 6),
         "dark_median_code": dark_code,
         "additivity": additivity,
+        "exposures_estimated": None if estimate is None else _estimate_record(estimate),
         "monotonic": {"max_dip": round(fit.max_dip, 6), "flattened": fit.max_dip > 0},
         "software_version": __version__,
     }
@@ -595,6 +605,40 @@ def _fit_and_write(
         f"`nlips capture --camera-response {out}`"
     )
     return 0
+
+
+def _estimated(frames: list, exposures: Sequence[float], source: str) -> TimesEstimate:
+    """A --bracket folder's times estimated from its frames (``device.bracket_times``), for a folder without the
+    LED pairs that would check the curve: said in one line when they differ from those named enough to be fitted
+    at (a camera that rounds its exposures to steps of its own without a word)."""
+    from ..device.bracket_times import estimate_times
+
+    estimate = estimate_times(frames, exposures, source)
+    if estimate.used:
+        moved = [
+            f"{n:g} -> {e:.4g}"
+            for n, e in sorted(zip(estimate.named_ms, estimate.estimated_ms, strict=True))
+            if abs(e / n - 1) > SHOWN_MOVE
+        ]
+        print(
+            f"{source}: its frames' light grows otherwise than the times named (a step {estimate.largest:.1%} off): "
+            f"the camera took some exposures at times of its own (a shutter table: 1/60 s for 16 ms); the curve is "
+            f"fitted at the times its frames say ({', '.join(moved)} ms, their steps' median ratio kept as named; "
+            f"provenance.exposures_estimated)",
+            file=sys.stderr,
+        )
+    return estimate
+
+
+def _estimate_record(estimate: TimesEstimate) -> dict:
+    """What the response file records of a --bracket folder's estimated times (docs/formats.md)."""
+    return {
+        "used": estimate.used,
+        "times_ms": [round(t, 6) for t in estimate.estimated_ms],
+        "step_errors": [None if e is None else round(e, 6) for e in estimate.step_errors],
+        "largest_step_error": round(estimate.largest, 6),
+        "rounds": estimate.rounds,
+    }
 
 
 def _pinned(
@@ -636,8 +680,10 @@ def _pinned(
         "error": round(check.before, 6),
         "power": round(check.power, 6),
         "error_after": round(check.after, 6),
+        "common": round(check.common, 6),
     }
     if check.power == 1.0:
+        _say_common(check.common, source)
         return fit, record
     p = check.power
     print(
@@ -651,3 +697,22 @@ def _pinned(
         fit, curve=fit.curve**p, kept=fit.kept**p, channels=fit.channels**p, points=(codes, linear**p)
     )
     return raised, record
+
+
+def _say_common(common: float, source: str) -> None:
+    """One line when the LED pairs of a curve kept as fitted share a misfit (``common``, their median signed error)
+    beyond :data:`~nlipscalib.core.tolerances.RESPONSE_ADDITIVITY_COMMON`: they dim (or brighten) each other as a
+    whole by about a percent, which the curve, one LED's bracket, does not see, or the times are a power of the asked
+    within 0.98-1.02 (benchmarks/RESULTS.md, s33-bracket)."""
+    from ..core.tolerances import RESPONSE_ADDITIVITY_COMMON, RESPONSE_ADDITIVITY_ERROR
+
+    if abs(common) <= RESPONSE_ADDITIVITY_COMMON:
+        return
+    print(
+        f"{source}: with the curve as fitted, LEDs lit together give {1 + common:.3f} times their light lit apart "
+        f"in every pair (the median; within the {RESPONSE_ADDITIVITY_ERROR:.1%} allowed, a right camera's within "
+        f"{RESPONSE_ADDITIVITY_COMMON:.1%}): the LEDs {'dim' if common < 0 else 'brighten'} each other slightly when "
+        "lit together (a shared supply), or the exposure times are a power of those asked within 0.98-1.02 (the "
+        "curve then up to ~0.7% off); the curve is kept as fitted",
+        file=sys.stderr,
+    )

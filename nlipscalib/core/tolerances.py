@@ -706,6 +706,23 @@ taking one exposure 3 / 4 / 6 % off the asked shows 2.7 / 3.8 / 5.5 % (benchmark
 RESPONSE_RATIO_LOW_CODE = 32
 """Pixels whose merged light puts them below this 8-bit code in the darker frame of a pair are left out of the
 pair's ratio (:data:`RESPONSE_RATIO_ERROR`): at the dark end a code's light is a few codes' rounding and noise."""
+RESPONSE_ESTIMATE_LOW_CODE = 64
+"""Pixels whose merged light puts them below this 8-bit code in the darker frame of a pair are left out of the
+pair's ratio when a bracket folder's times are estimated (:mod:`nlipscalib.device.bracket_times`): higher than
+:data:`RESPONSE_RATIO_LOW_CODE`, because an estimate is fitted at again and again, and the dark codes' bias (noise
+clipped at black) would add up over the rounds (a noisy synthetic right bracket from 0.125 ms: steps 1-4 % off with
+32, within 0.9 % with 64; benchmarks/RESULTS.md, s33-bracket)."""
+RESPONSE_ESTIMATE_ROUNDS = 4
+"""Most rounds of fit and ratio update when a bracket folder's times are estimated
+(:mod:`nlipscalib.device.bracket_times`): the emulated 1/n s shutter bracket's steps come within 0.64 % in 3-4
+(the curve mostly in 2); more rounds let a right bracket's dark steps drift with their bias (s33-bracket)."""
+RESPONSE_ESTIMATE_STEP = 0.015
+"""A bracket folder's times estimated from its frames are used instead of those named (said in a line) when a step
+between consecutive frames the estimate judges differs from the named step by more than this fraction
+(:mod:`nlipscalib.device.bracket_times`). Right brackets' estimates stay within 0.0003-0.0084 of the named steps
+(the emulated sensor's four curves, 64x48 1 spp three seeds and 160x120 4 spp: 0.0045 at most; a noisy synthetic
+64x48 one, five seeds: 0.0084); a 1/n s shutter table's 4.17 % step is estimated as 3.78-4.19 % (s33-bracket). Within
+it the named times are kept: the curve bit for bit as before."""
 RESPONSE_BLACK_CODES = 2.0
 """Most 8-bit codes a bracket's dark frame (every LED off, the shortest exposure) may read above the black level
 given, its median over the frame, before the bracket is refused as from a camera that adds a black level
@@ -734,6 +751,14 @@ power 0.9-1.1 of the asked ones, pinned, leave 0.01-0.23 % (200 runs: five curve
 0.96, the curve 1.3-1.4 % off (benchmarks/RESULTS.md, s31-additive, s32-devleft). A pair dimmed by 1.5 % or less
 mostly stays within the 1.5 % of :data:`RESPONSE_ADDITIVITY_ERROR` and the curve is kept as fitted (right: the
 bracket is one LED's)."""
+RESPONSE_ADDITIVITY_COMMON = 0.006
+"""A curve kept as fitted (its LED pairs add within :data:`RESPONSE_ADDITIVITY_ERROR`) whose pairs' errors have a
+median beyond this fraction is said in one line, not changed: the pairs dim (or brighten) each other as a whole by
+about 1-1.5 %, which the curve (one LED's bracket) does not see, or the times are a power within 0.98-1.02 of the
+asked (the curve up to ~0.7 % off); at that size the two cannot be told apart (their bins' gap as fitted 0.00-0.19 %
+against 0.21-0.53 %, 64x48). Right cameras: 0.00-0.40 % (the emulated sensor, five curves x six seeds, 64x48 1
+spp; the stand-in webcam 0.01 %); pairs at 0.99 of their light apart -0.63 to -1.00 %, at 1.01 +1.00 to +1.42 %,
+kept at 0.985 -1.13 to -1.40 % (benchmarks/RESULTS.md, s33-bracket)."""
 RESPONSE_ADDITIVITY_POWERS = (0.5, 2.0)
 """The powers of the fitted curve tried to make the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`): times that
 are ``t ** a`` of the asked ones give a curve off by the power ``a``; a = 0.5-2 spans shutter tables from a base

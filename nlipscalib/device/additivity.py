@@ -76,6 +76,14 @@ class Additivity:
         return _largest([e for pair in self.errors for e in pair[2:]])
 
     @property
+    def common(self) -> float:
+        """The median of every pair's and bin's error with the curve as fitted, with its sign (NaN when none was
+        judged): what the pairs share. A pair dimmed (or brightened) as a whole moves it alike in both bins; a
+        right camera's noise leaves it near 0 (:data:`~nlipscalib.core.tolerances.RESPONSE_ADDITIVITY_COMMON`)."""
+        finite = [e for pair in self.errors for e in pair[2:] if np.isfinite(e)]
+        return float(np.median(finite)) if finite else float("nan")
+
+    @property
     def signed(self) -> float:
         """The error of largest magnitude of any pair and bin with the curve as fitted, with its sign."""
         return max((e for pair in self.errors for e in pair[2:] if np.isfinite(e)), key=abs)

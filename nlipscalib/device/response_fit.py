@@ -102,24 +102,16 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
         black to near white, a curve that falls, or frames whose light does not grow as their times
         (:func:`check_exposure_ratios`).
     """
-    cv2 = require("cv2", "opencv-python-headless", "Measuring a camera's response")
     times = np.asarray(exposures_ms, dtype=np.float64)
     if len(frames) != len(times):
         raise ValueError(f"{len(frames)} frames for {len(times)} exposures")
-    _check_bracket(frames, times, source)
+    check_bracket(frames, times, source)
     order = np.argsort(times)
     frames = [np.ascontiguousarray(frames[i]) for i in order]
     times = times[order]
     check_follows(frames, times, source)
-    # OpenCV takes BGR or RGB alike (per channel), seconds as float32
-    raw = cv2.createCalibrateRobertson().process(frames, (times / 1000.0).astype(np.float32))
-    raw = raw.reshape(CODES, 3).astype(np.float64)
-    channels = np.stack([_normalised(raw[:, c], _seen_codes(frames, c), source) for c in range(3)], axis=1)
-    known = np.isfinite(channels)
-    count = known.sum(axis=1)
-    total = np.where(known, channels, 0.0).sum(axis=1)
-    # a code one channel never saw: the others' curve; none saw it: interpolated between its neighbours
-    mean = _filled(np.divide(total, count, out=np.full(CODES, np.nan), where=count > 0))
+    channels = robertson_channels(frames, times, source)
+    mean = channels_mean(channels)
     lit = np.isfinite(channels).all(axis=1)
     spread = float(np.nanmax(np.ptp(channels[lit], axis=1))) if lit.any() else 0.0
     # channels that differ beyond the fit's own error each keep their curve (a webcam's R, G and B often do); a
@@ -136,6 +128,36 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
     residual, points = _residual(frames, times, per_channel)
     seen = (int(seen[0]), int(seen[-1]))
     return ResponseFit(curve, kept, channels, seen, residual, spread, difference, max_dip, ratio_error, points)
+
+
+def robertson_channels(frames: Sequence[np.ndarray], times: np.ndarray, source: str) -> np.ndarray:
+    """Each channel's curve as OpenCV's ``CalibrateRobertson`` fits it to ``frames`` at ``times``, normalised
+    (:func:`_normalised`).
+
+    Parameters
+    ----------
+    frames : sequence of (H, W, 3) uint8, RGB (any height and width: a (1, P, 3) row of sampled pixels too)
+    times : (E,) float64, ms, one per frame
+    source : named in a refusal (codes that do not reach from near black to near white)
+
+    Returns
+    -------
+    (256, 3) float64, linear light per code and channel (R, G, B), NaN where the channel saw no code
+    """
+    cv2 = require("cv2", "opencv-python-headless", "Measuring a camera's response")
+    # OpenCV takes BGR or RGB alike (per channel), seconds as float32
+    raw = cv2.createCalibrateRobertson().process(list(frames), (times / 1000.0).astype(np.float32))
+    raw = raw.reshape(CODES, 3).astype(np.float64)
+    return np.stack([_normalised(raw[:, c], _seen_codes(frames, c), source) for c in range(3)], axis=1)
+
+
+def channels_mean(channels: np.ndarray) -> np.ndarray:
+    """(256,) float64, the channels' mean curve of :func:`robertson_channels`' (256, 3): a code one channel never
+    saw takes the others' curve; one none saw is interpolated between its neighbours."""
+    known = np.isfinite(channels)
+    count = known.sum(axis=1)
+    total = np.where(known, channels, 0.0).sum(axis=1)
+    return _filled(np.divide(total, count, out=np.full(CODES, np.nan), where=count > 0))
 
 
 def channel_difference(channels: np.ndarray) -> float:
@@ -203,14 +225,7 @@ def check_exposure_ratios(frames: Sequence[np.ndarray], times: np.ndarray, curve
     -------
     float, the largest relative error over the pairs judged (0 when none could be)
     """
-    _, linear, light = _merged_light(frames, times, curves, _sample_step(frames))
-    low = curves[np.arange(3), RESPONSE_RATIO_LOW_CODE]  # each channel's light at that code
-    high = curves[np.arange(3), RESPONSE_CLIPPED_CODE - 1]
-    errors = np.zeros(len(times) - 1)
-    for k in range(len(times) - 1):
-        use = (light * times[k] >= low) & (light * times[k + 1] <= high)
-        if use.mean() >= RESPONSE_RISE_PIXELS:
-            errors[k] = linear[k + 1][use].sum() / linear[k][use].sum() / (times[k + 1] / times[k]) - 1.0
+    errors = np.nan_to_num(ratio_errors(frames, times, curves, RESPONSE_RATIO_LOW_CODE))
     worst = int(np.argmax(np.abs(errors)))
     if abs(errors[worst]) > RESPONSE_RATIO_ERROR:
         ratio = times[1:] / times[:-1]
@@ -228,7 +243,34 @@ def check_exposure_ratios(frames: Sequence[np.ndarray], times: np.ndarray, curve
     return float(np.abs(errors).max())
 
 
-def _check_bracket(frames: Sequence[np.ndarray], times: np.ndarray, source: str) -> None:
+def ratio_errors(frames: Sequence[np.ndarray], times: np.ndarray, curves: np.ndarray, low_code: int) -> np.ndarray:
+    """Each pair of consecutive frames' light, the curves undone, against their exposures' ratio: the ratio of the
+    two frames' summed linear values over the pixels whose merged light (:func:`_merged_light`) puts them at
+    ``low_code`` or above in the darker frame and below clipping in the brighter, over the times' ratio, minus 1.
+
+    Parameters
+    ----------
+    frames : sequence of (H, W, 3) uint8, sorted by exposure
+    times : (E,) float64, ms, ascending
+    curves : (3, 256) float64, each channel's curve (R, G, B)
+    low_code : 8-bit code
+
+    Returns
+    -------
+    (E - 1,) float64, relative error per pair; NaN where too few pixels judge it (both frames dark or clipped)
+    """
+    _, linear, light = _merged_light(frames, times, curves, _sample_step(frames))
+    low = curves[np.arange(3), low_code]  # each channel's light at that code
+    high = curves[np.arange(3), RESPONSE_CLIPPED_CODE - 1]
+    errors = np.full(len(times) - 1, np.nan)
+    for k in range(len(times) - 1):
+        use = (light * times[k] >= low) & (light * times[k + 1] <= high)
+        if use.mean() >= RESPONSE_RISE_PIXELS:
+            errors[k] = linear[k + 1][use].sum() / linear[k][use].sum() / (times[k + 1] / times[k]) - 1.0
+    return errors
+
+
+def check_bracket(frames: Sequence[np.ndarray], times: np.ndarray, source: str) -> None:
     """One line naming ``source`` when the bracket cannot give a curve: too few exposures, repeated ones, frames
     that are no 8-bit images of one size, or too few frames that are neither black nor clipped on the gel."""
     check_exposures(times, source)
