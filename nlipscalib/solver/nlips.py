@@ -3,10 +3,12 @@
 Unknown: log-depth t = log z on a mask of pixels. Energy::
 
     E(t, rho) = sum_{p, i, c usable} phi(rho_c(p) Psi_ic F_i(p; t) - I_ic(p))
-                + zeta sum_p (t_p - t0_p)^2 + gamma sum_s phi_s(second differences s of t)
+                + zeta sum_p (t_p - t0_p)^2 + gamma sum_s phi_s(second differences s of t - t0)
 
 phi_s(s) = c^2 log(1 + s^2 / c^2): squared for small s, edge-preserving beyond c (``SolverOptions.smoothness_edge``, a
-slope change per pixel; ``smoothness.py``), so a relief's walls keep their height; c = 0 (off): s^2.
+slope change per pixel; ``smoothness.py``), so a relief's walls keep their height; c = 0 (off): s^2. The second
+differences are the deformation's from the prior t0 when the prior is a surface (``SolverOptions.smooth_deformation``;
+of t itself from the nominal distance), so the dome's own curvature costs nothing.
 
 The albedo is eliminated (variable projection): it is the closed-form (IRLS-weighted) fit at every
 depth, and each Gauss-Newton step on t uses the Jacobian projected orthogonally to the shading, so
@@ -129,6 +131,8 @@ def solve(
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
+    if prior_depth is None and opts.smooth_deformation:  # the nominal distance is a guess, not a surface
+        opts = dataclasses.replace(opts, smooth_deformation=False)
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")

@@ -45,6 +45,13 @@ class SolverOptions:
     squared penalty flattened the walls of a relief a pixel or two wide (a coin's rim and strokes, steps of
     0.3-0.5 mm) and left the demo's coin face 0.18 mm too shallow; noise and smooth indenters (a few hundredths
     per pixel) stay in its quadratic part. 0 = squared everywhere (the solver before s32)."""
+    smooth_deformation: bool = True
+    """The smoothness penalises the second differences of the deformation, log-depth minus the prior's, not of
+    log-depth itself (:class:`nlipscalib.solver.smoothness.Smoothness`' ``about``), where the prior is a surface
+    (a reference's depth; the ``nominal_distance`` guess is not one: there, of log-depth as before). Why: the dome's
+    own curvature in log-depth was pulled straight where the light holds the depth weakly: a view that sees the dome
+    down to its base (lit at 0.15 of the gel's median there) solved its outer 2-4 px 5-10 deg off, exact data
+    included (benchmarks/RESULTS.md, s33-rimedge). False: of log-depth everywhere (the solver before s33)."""
     nominal_distance: float = 15.0
     """Camera-to-surface distance along each ray, mm, used as prior when the capture has no reference."""
     pyramid_levels: int = 0
