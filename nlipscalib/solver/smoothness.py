@@ -1,7 +1,7 @@
 """The NLiPs energy's smoothness term on one pyramid level: gamma times a penalty of the second differences of
 log-depth t along u and v (:func:`nlipscalib.solver.operators.level_operators`' ``second``), squared, or
 edge-preserving (``SolverOptions.smoothness_edge``): squared up to a scale, logarithmic (Cauchy) beyond it, so the
-walls of a relief keep their height. Of t's deformation from the prior t0 where the prior is a surface
+walls of a relief keep their height. Of t's deformation from the prior t0 where the camera sees past the gel
 (``SolverOptions.smooth_deformation``): the dent is smooth, the dome's own curvature is no cost.
 
 Conventions are those of :mod:`nlipscalib.solver.gauss_newton`: the energy is gamma * sum phi(s) with

@@ -147,18 +147,38 @@ def test_a_view_down_to_the_domes_base_solves_its_edge_from_exact_data():
         return float(angle_deg(normals[edge], truth[edge]).mean())
 
     prior_normals_off = 1.5  # deg: what the prior alone would give there (1.9)
-    assert edge_error(SolverOptions()) < 0.5  # 0.14
-    assert edge_error(SolverOptions(smooth_deformation=False)) > 2 * prior_normals_off  # 5.3: the cause
+    assert edge_error(SolverOptions()) < 0.5  # 0.14: "auto" on a view past the gel
+    assert edge_error(SolverOptions(smooth_deformation="off")) > 2 * prior_normals_off  # 5.3: the cause
 
 
-def test_a_solve_without_a_prior_surface_smooths_log_depth_as_before():
-    """The nominal distance is a guess, not a surface: without a prior depth the smoothness stays of log-depth itself
-    (the same bits with the option on or off)."""
+def test_a_gel_filling_view_or_no_prior_surface_keeps_the_smoothness_of_log_depth():
+    """The "auto" smoothness takes the deformation only where the camera sees past the gel: a gel-filling view (a
+    32x24 crop of the wide camera's middle: all gel) keeps the bits of "off"; so does a solve without a prior depth
+    (the nominal distance is a guess, not a surface), even "on"."""
+    import dataclasses
+
     from nlipscalib.solver import SolverOptions, solve
 
-    images, cam, leds, prior, _ = _wide_dome(0.0, 12.0)
-    mask = np.isfinite(prior)
-    on = solve(images, cam, leds, mask=mask, options=SolverOptions(max_iters=3))
-    off = solve(images, cam, leds, mask=mask, options=SolverOptions(max_iters=3, smooth_deformation=False))
-    np.testing.assert_array_equal(on.depth, off.depth)
-    np.testing.assert_array_equal(on.normals, off.normals)
+    images, cam, leds, prior, _ = _wide_dome(0.5, 12.2)
+    crop = (slice(12, 36), slice(16, 48))
+    middle = dataclasses.replace(cam, width=32, height=24, cx=cam.cx - 16, cy=cam.cy - 12)
+    filled = prior[crop]
+    assert np.isfinite(filled).all()
+
+    def solved(mode: str, prior_depth: np.ndarray | None, mask: np.ndarray | None = None):
+        options = SolverOptions(max_iters=3, smooth_deformation=mode)
+        return solve(images[:, crop[0], crop[1]], middle, leds, prior_depth=prior_depth, mask=mask, options=options)
+
+    auto, off, on = (solved(mode, filled) for mode in ("auto", "off", "on"))
+    np.testing.assert_array_equal(auto.depth, off.depth)
+    assert not np.array_equal(on.depth, off.depth)  # "on" is a change
+    every = np.ones(filled.shape, bool)
+    np.testing.assert_array_equal(solved("on", None, every).depth, solved("off", None, every).depth)
+
+
+def test_an_unknown_smooth_deformation_is_refused_in_one_line():
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.solver import SolverOptions
+
+    with pytest.raises(ConfigError, match="smooth_deformation must be auto, on or off"):
+        SolverOptions(smooth_deformation="yes")
