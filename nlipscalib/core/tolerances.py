@@ -795,3 +795,10 @@ the dome's base, black corners) and whose LED file holds fitted disks is told on
 disks`` (:func:`nlipscalib.pipeline.solve.hint_disk_leds`). Why: beside the LEDs the point model misses the light
 cups' light by up to 8.5 % and bent the whole gel's depth (the twin's wide view, 84 % gel: contact depth RMSE 0.084
 mm with points, 0.003 with disks, s32-rimdepth); the gel-filling default view covers the whole frame (share 1.0)."""
+
+GEL_FRAME_SHARE_PAST_GEL = 0.95
+"""A solve whose prior's gel (the reference's finite depth) covers less of the frame than this sees past the gel, and
+its smoothness penalises the deformation from the reference (``SolverOptions.smooth_deformation`` "auto"). Why: there
+the dome's own curvature, pulled straight by a smoothness of log-depth, put the gel's outer 2-4 px 5-10 deg off (the
+twin's wide view, 84 % gel, s33-rimedge); the gel-filling default view covers the whole frame (share 1.0) and keeps
+its bits. The share of :data:`GEL_FRAME_SHARE_FOR_DISKS`, the same question."""

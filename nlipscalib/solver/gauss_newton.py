@@ -92,7 +92,8 @@ class _Level:
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
         self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
-        self.smooth = Smoothness(self.ops, self.gamma, edge_scale(self.A, self.C, opts.smoothness_edge))
+        about = self.t0 if opts.smooth_deformation == "on" else None  # "auto" is decided by nlips.solve
+        self.smooth = Smoothness(self.ops, self.gamma, edge_scale(self.A, self.C, opts.smoothness_edge), about)
         if est != "ls":
             albedo, r, e_data = self.refit(F, albedo, energy=True)
         self.M, self.b = model.irls_blocks(F, dF, r, albedo, self.lam, est)

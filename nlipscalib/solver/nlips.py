@@ -3,10 +3,12 @@
 Unknown: log-depth t = log z on a mask of pixels. Energy::
 
     E(t, rho) = sum_{p, i, c usable} phi(rho_c(p) Psi_ic F_i(p; t) - I_ic(p))
-                + zeta sum_p (t_p - t0_p)^2 + gamma sum_s phi_s(second differences s of t)
+                + zeta sum_p (t_p - t0_p)^2 + gamma sum_s phi_s(second differences s of t - t0)
 
 phi_s(s) = c^2 log(1 + s^2 / c^2): squared for small s, edge-preserving beyond c (``SolverOptions.smoothness_edge``, a
-slope change per pixel; ``smoothness.py``), so a relief's walls keep their height; c = 0 (off): s^2.
+slope change per pixel; ``smoothness.py``), so a relief's walls keep their height; c = 0 (off): s^2. Where the
+camera sees past the gel (``SolverOptions.smooth_deformation``) the second differences are the deformation's from the
+prior t0, so the dome's own curvature costs nothing.
 
 The albedo is eliminated (variable projection): it is the closed-form (IRLS-weighted) fit at every
 depth, and each Gauss-Newton step on t uses the Jacobian projected orthogonally to the shading, so
@@ -41,6 +43,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core import tolerances
 from ..core.blas import blas_threads
 from ..core.camera import Camera
 from ..core.errors import ConfigError
@@ -129,6 +132,7 @@ def solve(
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
+    opts = dataclasses.replace(opts, smooth_deformation=smoothness_about_prior(opts, prior_depth))
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
@@ -177,6 +181,19 @@ def solve(
                 numbers,
             )
     return result
+
+
+def smoothness_about_prior(opts: SolverOptions, prior_depth: np.ndarray | None) -> str:
+    """``opts.smooth_deformation`` decided for this solve: "on" or "off" (:class:`SolverOptions`).
+
+    prior_depth : (H, W) float, mm, NaN off the gel, or None (the nominal distance: a guess, not a surface: "off").
+    """
+    if prior_depth is None or opts.smooth_deformation == "off":
+        return "off"
+    if opts.smooth_deformation == "on":
+        return "on"
+    gel_share = float(np.mean(np.isfinite(prior_depth)))  # the whole frame's prior: the camera's view of the gel
+    return "on" if gel_share < tolerances.GEL_FRAME_SHARE_PAST_GEL else "off"
 
 
 def _solve_checked(

@@ -10,6 +10,7 @@ from ..core.errors import ConfigError
 
 Estimator = Literal["cauchy", "ls", "huber", "tukey"]
 Normals = Literal["depth", "refined"]
+SmoothDeformation = Literal["auto", "on", "off"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +46,15 @@ class SolverOptions:
     squared penalty flattened the walls of a relief a pixel or two wide (a coin's rim and strokes, steps of
     0.3-0.5 mm) and left the demo's coin face 0.18 mm too shallow; noise and smooth indenters (a few hundredths
     per pixel) stay in its quadratic part. 0 = squared everywhere (the solver before s32)."""
+    smooth_deformation: SmoothDeformation = "auto"
+    """What the smoothness penalises the second differences of: "on", the deformation, log-depth minus the prior's
+    (:class:`nlipscalib.solver.smoothness.Smoothness`' ``about``), where the prior is a surface (a reference's depth;
+    the ``nominal_distance`` guess is not one: there, of log-depth); "off", of log-depth itself (the solver before
+    s33); "auto" (default), "on" where the camera sees past the gel (the prior's gel covers less than
+    ``tolerances.GEL_FRAME_SHARE_PAST_GEL`` of the frame), else "off". Why: the dome's own curvature in log-depth was
+    pulled straight where the light holds the depth weakly: a view that sees the dome down to its base (lit at 0.15 of
+    the gel's median there) solved its outer 2-4 px 5-10 deg off, exact data included; on the gel-filling view "on"
+    moved the contact AAE by -0.005 to +0.006 deg, so that view keeps its bits (benchmarks/RESULTS.md, s33-rimedge)."""
     nominal_distance: float = 15.0
     """Camera-to-surface distance along each ray, mm, used as prior when the capture has no reference."""
     pyramid_levels: int = 0
@@ -147,6 +157,8 @@ class SolverOptions:
             raise ConfigError(f"solver.dead_led_level must be in [0, 1) of full scale, got {self.dead_led_level}")
         if self.normals not in ("depth", "refined"):
             raise ConfigError(f"solver.normals must be depth or refined, got {self.normals!r}")
+        if self.smooth_deformation not in ("auto", "on", "off"):
+            raise ConfigError(f"solver.smooth_deformation must be auto, on or off, got {self.smooth_deformation!r}")
         if self.anchor_threshold < 0:
             raise ConfigError(f"solver.anchor_threshold must be >= 0, got {self.anchor_threshold}")
 
