@@ -245,8 +245,10 @@ def calibrate_leds(
     except LedFitRanOff as error:
         raise CaptureError(ran_off_line(presses, error.led, settings.initial)) from None
     _check_finite(cal, presses[0].folder)
+    # two neighbours' images exchanged: fitted each where its image shows it, unseen by the images' own check
+    exchange_notes = _exchanged_images(presses, cal.leds, initial, held, reorder_leds)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
-    notes = order_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
+    notes = order_notes + exchange_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
     notes += [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
@@ -308,6 +310,58 @@ def _in_shown_order(
             notes.append(f"{p.folder}: the LED images are out of order, fitted as captured (--keep-led-order)")
         out.append(p)
     return out, notes, applied
+
+
+EXCHANGE_REFUSED = (
+    "; not calibrated: put the images in the LEDs' order (their files, or images.leds in meta.json) and run again, or "
+    "pass --keep-led-order to calibrate each LED where its image shows it (right only for captures taken in this order)"
+)
+"""The tail of the LED calibration's refusal of LED images captured in each other's place (:func:`_exchanged_images`).
+
+Why refused, not written with a warning: the file would place each of those LEDs at the other's place, and every solve
+with it takes them so without a word (a solve cannot tell two neighbours' images apart either); a warning scrolls by in
+a script, the refusal costs one run again."""
+EXCHANGE_KEPT = (
+    "; calibrated as captured (--keep-led-order): each LED where its image shows it, right only for captures taken in "
+    "this order"
+)
+"""The tail of the warning of :func:`_exchanged_images` with ``--keep-led-order``."""
+
+
+def _exchanged_images(
+    presses: Sequence[Press], leds: Leds, initial: Leds | None, held: Sequence[int], reorder: bool
+) -> list[str]:
+    """The warning (``reorder`` False: ``--keep-led-order``) naming LED images captured in each other's place, told by
+    the fitted ``leds`` against the design's (``initial``, else the capture's meta.json LEDs:
+    :func:`nlipscalib.core.led_exchange.exchanged_leds`; ``held``: LEDs not fitted); [] when none. CaptureError with
+    that line when ``reorder`` (the default): :data:`EXCHANGE_REFUSED` says why."""
+    from ..core.led_exchange import exchanged_leds
+    from ..core.leds import led_arrays
+
+    design = led_arrays(tuple(initial) if initial is not None else presses[0].leds)[0]
+    fitted = led_arrays(leds)[0]
+    cycles = exchanged_leds(design, fitted, tuple(held))
+    if not cycles:
+        return []
+    names = image_names(presses[0])
+    folders = ", ".join(str(p.folder) for p in presses)
+    parts = []
+    for cycle in cycles:
+        files = [names[i] for i in cycle]
+        said = " and ".join(files) if len(files) == 2 else ", ".join(files[:-1]) + f" and {files[-1]} (a cycle)"
+        places = []
+        for k, i in enumerate(cycle):
+            j = cycle[(k + 1) % len(cycle)]
+            near, own = np.linalg.norm(fitted[i] - design[j]), np.linalg.norm(fitted[i] - design[i])
+            places.append(f"LED {i + 1} {near:.2f} mm from LED {j + 1}'s design place and {own:.2f} mm from its own")
+        parts.append(f"{said} look exchanged (fitted {', '.join(places)})")
+    line = (
+        f"{folders}: {'; '.join(parts)}: their images were captured in each other's place (the LED wiring, the "
+        "controller's LED order or the images' order)"
+    )
+    if reorder:
+        raise CaptureError(line + EXCHANGE_REFUSED)
+    return [line + EXCHANGE_KEPT]
 
 
 def _check_finite(cal: LedCalibration, folder: Path) -> None:
