@@ -60,6 +60,44 @@ def exchanged_leds(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ..
     own = np.diag(cost)
     there = cost[np.arange(len(own)), assigned]
     exchange = (own - there >= tolerances.LED_EXCHANGE_MM) & (own >= tolerances.LED_EXCHANGE_NEARER * there)
+    return _cycles(assigned, exchange)
+
+
+def exchanged_images(reference: np.ndarray, images: np.ndarray) -> list[list[int]]:
+    """The cycles of LED images of one capture that show the light another capture's images of other LEDs show: the
+    same sensor's captures in different LED orders.
+
+    Each image of ``images`` is assigned one-to-one to an image of ``reference`` at the largest summed correlation
+    (:func:`scipy.optimize.linear_sum_assignment`); a cycle of that assignment is an exchange when each of its images
+    correlates at least :data:`~nlipscalib.core.tolerances.IMAGE_EXCHANGE_GAIN` better with the image it is assigned
+    than with its own LED's. Why: the undeformed dome's images of one LED in two captures correlate 0.9987 or more
+    (the twin's 160x120 seeds 7 and 8), two neighbours' 0.83 at most; two of them exchanged in one capture, 0.71 with
+    their own and 0.999 with each other's. Calibrated together, such captures pulled both LEDs halfway (3 mm off) and
+    were refused as a contact "in LED 4's image: LED 4 sits 9.9 mm from the gel" (s33-ledswap).
+
+    Parameters
+    ----------
+    reference, images : (L, N) float -- two captures' LED images over the same N gel pixels (linear, e.g. the
+        channels' mean), in their captured order.
+
+    Returns
+    -------
+    list of list of int -- each exchange's images (0-based) in ``images``, from its lowest, in the assignment's order
+    (``[2, 3]``: image 3 shows what ``reference``'s image 4 shows, and image 4 what its image 3 shows); empty when none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    count = len(reference)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): no correlation
+        corr = np.nan_to_num(np.corrcoef(images, reference)[:count, count:], nan=-1.0)
+    rows, place = linear_sum_assignment(corr, maximize=True)
+    assigned = place[np.argsort(rows)]
+    gain = corr[np.arange(count), assigned] - np.diag(corr)
+    return _cycles(assigned, gain >= tolerances.IMAGE_EXCHANGE_GAIN)
+
+
+def _cycles(assigned: np.ndarray, exchange: np.ndarray) -> list[list[int]]:
+    """The cycles of the assignment ``assigned`` (each index to another) whose members are all ``exchange``."""
     cycles, seen = [], set()
     for start in range(len(assigned)):
         if assigned[start] == start or start in seen:

@@ -775,6 +775,12 @@ LED_EXCHANGE_NEARER = 3.0
 places, the farthest s31-ledfar starts from) has LEDs up to 1.3 mm nearer a neighbour's place on the default ring
 (4.66 mm apart: at best 1.66 mm from it, 1.8 times nearer), never 3 times; on a ring twice as dense (2.3 mm apart) an
 LED would have to be built 1.75 mm toward a neighbour's place to reach it."""
+IMAGE_EXCHANGE_GAIN = 0.1
+"""``nlips calibrate-leds`` of several captures: a capture whose LED images correlate at least this much better with
+another capture's images of other LEDs than with their own LED's (over the gel) holds them in another order
+(:func:`nlipscalib.core.led_exchange.exchanged_images`). The twin's 160x120 undeformed dome, seeds 7 and 8: an LED's
+images 0.9987 or more, two neighbours' 0.83 at most; led_03.png and led_04.png exchanged: 0.71 with their own, 0.999
+with each other's (gain 0.29; benchmarks/RESULTS.md, s33-ledswap)."""
 
 GEL_FRAME_SHARE_FOR_DISKS = 0.95
 """A whole-frame solve with point LEDs whose gel covers less of the frame than this (the camera sees past the gel:

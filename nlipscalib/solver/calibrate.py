@@ -230,6 +230,7 @@ def calibrate_leds(
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
+    _check_one_order(presses)  # captures in different LED orders: no joint fit means anything
     # a stale frame (an LED image repeating the one before it): out of that LED's fit, its LED held where no capture
     # holds its light
     presses, repeated_notes, held = without_repeated_images(presses)
@@ -362,6 +363,49 @@ def _exchanged_images(
     if reorder:
         raise CaptureError(line + EXCHANGE_REFUSED)
     return [line + EXCHANGE_KEPT]
+
+
+CHECK_ORDER_STEP = 4
+"""Every this-many-th gel pixel the captures' LED images are correlated on (:func:`_check_one_order`): 4,800 at
+160x120 (the twin's seeds: 0.9987 and more for one LED's images, 0.83 at most for neighbours'), ~60,000 at
+640x480."""
+
+
+def _check_one_order(presses: Sequence[Press]) -> None:
+    """CaptureError (one line naming the captures and images) when a capture's LED images hold the light of other LEDs'
+    images of the first capture (:func:`nlipscalib.core.led_exchange.exchanged_images`): the same sensor captured in
+    another LED order. Why before the fit: calibrated together, led_03.png and led_04.png exchanged in one of two
+    captures pulled LEDs 3 and 4 halfway and were refused as a contact naming LED 4's mounting (s33-ledswap)."""
+    from ..core.led_exchange import exchanged_images
+
+    first = presses[0]
+    for p in presses[1:]:
+        if first.reference is None or p.reference is None or p.camera.shape != first.camera.shape:
+            continue  # refused further on (no reference.npz, another sensor)
+        if len(p.leds) != len(first.leds):
+            continue
+        gel = np.isfinite(first.reference.depth) & np.isfinite(p.reference.depth)
+        pick = np.flatnonzero(gel.ravel())[::CHECK_ORDER_STEP]
+        cycles = exchanged_images(_gel_images(first, pick), _gel_images(p, pick))
+        if not cycles:
+            continue
+        names, theirs = image_names(p), image_names(first)
+        said = "; ".join(
+            f"{' and '.join(names[i] for i in cycle)} hold the light {first.folder}'s "
+            f"{' and '.join(theirs[cycle[(k + 1) % len(cycle)]] for k in range(len(cycle)))} hold"
+            for cycle in cycles
+        )
+        raise CaptureError(
+            f"{p.folder}: {said}: the captures' LED images are in different orders (the LED wiring, the controller's "
+            "LED order or the images' order changed between them); not calibrated: calibrate each capture alone (it "
+            "names images exchanged against the design), put the odd one's images in order, then calibrate them "
+            "together"
+        )
+
+
+def _gel_images(press: Press, pick: np.ndarray) -> np.ndarray:
+    """(L, len(pick)) float -- the capture's linear LED images at the flat pixel indices ``pick``, channels' mean."""
+    return press.linear_led_images.reshape(len(press.leds), -1, 3)[:, pick].mean(-1)
 
 
 def _check_finite(cal: LedCalibration, folder: Path) -> None:

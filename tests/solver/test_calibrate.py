@@ -543,3 +543,29 @@ def test_a_dark_band_just_under_half_an_led_image_is_told_to_the_row_and_fitted_
     near_half = load_press(synth.make_press(tmp_path / "r33", "none", lin_hook=dark(33)))
     with pytest.raises(CaptureError, match=r"led_05\.png's rows 0-32 \(top\) are dark .*leaves LED 5 4\d % of the gel"):
         calibrate_leds([near_half], stride=2)
+
+
+def test_captures_in_different_led_orders_are_refused_before_the_fit_naming_the_images(tmp_path):
+    """Two captures of one sensor, led_03.png and led_04.png exchanged in the second only: fitted together, the LEDs
+    were pulled halfway and the captures refused as a contact naming LED 4's mounting (the twin, s33-ledswap). Now
+    refused before the fit, naming the images by the other capture's; the two clean captures calibrate together."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.led_exchange import exchanged_images
+
+    def exchange(lin):
+        lin = lin.copy()
+        lin[[2, 3]] = lin[[3, 2]]
+        return lin
+
+    first = load_press(synth.make_press(tmp_path / "first", "none", size=(64, 48)))
+    second = load_press(synth.make_press(tmp_path / "second", "none", size=(64, 48), lin_hook=exchange))
+    with pytest.raises(CaptureError) as refused:
+        calibrate_leds([first, second], stride=3, interreflection="off")
+    line = str(refused.value)
+    assert line.startswith(f"{second.folder}: led_03.png and led_04.png hold the light {first.folder}'s led_04.png")
+    assert "in different orders" in line and "calibrate each capture alone" in line, line
+    gel = np.isfinite(first.reference.depth)
+    clean, swapped = (p.linear_led_images[:, gel].mean(-1) for p in (first, second))
+    assert exchanged_images(clean, clean) == [] and exchanged_images(clean, swapped) == [[2, 3]]
+    again = load_press(synth.make_press(tmp_path / "again", "none", size=(64, 48)))
+    calibrate_leds([first, again], stride=3, interreflection="off")  # no refusal
