@@ -7,8 +7,10 @@ its image shows it, LED 3 at LED 4's place and back, and calls the fit reliable 
 with led_03.png and led_04.png exchanged: both 4.68 mm from their design places, 0.19-0.28 mm from each other's;
 benchmarks/RESULTS.md, s33-ledswap). The best one-to-one assignment of the fitted LEDs to the design's places
 (:func:`scipy.optimize.linear_sum_assignment`, the Hungarian method SciPy keeps) names such an exchange when it is not
-the identity and explains the misfit by a wide margin (:func:`exchanged_leds`). In core beside the other LED
-comparisons (:mod:`nlipscalib.core.led_change`); the solver's calibration wires it.
+the identity and explains the misfit by a wide margin (:func:`exchanged_leds`). Several captures calibrated together
+are first compared image by image (:func:`exchanged_images`): one holding its images in another order than the
+first is told by the images alone. In core beside the other LED comparisons (:mod:`nlipscalib.core.led_change`); the
+solver's calibration wires both.
 """
 
 from __future__ import annotations
