@@ -89,15 +89,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         dest="reorder_leds",
         action="store_false",
         help="fit LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
-        "captured; by default they are fitted in the order they show, with a warning and the file's led_order",
+        "captured; by default they are fitted in the order they show, with a warning and the file's led_order. "
+        "Neighbours' images exchanged (each LED fitted at the other's design place, which the images alone do not "
+        "tell) are refused by default, naming both images; with this flag calibrated as captured, with a warning",
     )
     p.add_argument(
         "--previous",
         metavar="OLD_LEDS.json",
         help="an earlier LED file of this sensor: say which LEDs or tri-colour groups changed brightness (aged, "
         "replaced), whether all LEDs dimmed or brightened alike (or the exposure changed), or moved since, one warning "
-        "line each, in the table and in the new file ('previous'); a file of "
-        "another sensor is refused. It may be the --out file itself (read before it is replaced)",
+        "line each, in the table and in the new file ('previous'); what only one of the files holds (an older file's "
+        "missing light_level, disks in one) is said as not compared; a file of another sensor is refused. It may be "
+        "the --out file itself (read before it is replaced)",
     )
     p.set_defaults(func=run)
 
@@ -310,7 +313,9 @@ def _fit_and_write(args: argparse.Namespace) -> int:
         overall = previous["overall_brightness"]
         said = said if previous["changes"] else "no LED changed beyond the tolerances"
         together = "" if overall is None else f"all LEDs together x{overall:.3f}; "
-        say(f"against {args.previous}: {together}{said}")
+        # what only one of the files holds (an OLD file written before light_level, disks in one): said, not implied
+        missing = "; not compared: " + "; ".join(previous["not_compared"]) if previous["not_compared"] else ""
+        say(f"against {args.previous}: {together}{said}{missing}")
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
@@ -327,7 +332,7 @@ def _compared(args: argparse.Namespace, cal: LedCalibration, level: dict) -> dic
         return None
     from ..core.led_change import compare_calibrations
 
-    previous = compare_calibrations(args.previous_file, args.previous, cal.leds, cal.not_fitted, level)
+    previous = compare_calibrations(args.previous_file, args.previous, cal.leds, cal.not_fitted, level, cal.emitters)
     for line in previous["changes"]:
         log.warning("%s", line)
     return previous

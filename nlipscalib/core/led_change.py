@@ -132,6 +132,7 @@ def compare_calibrations(
     leds: Leds,
     not_fitted: tuple[int, ...] | list[int] = (),
     level: dict | None = None,
+    emitters: Leds = (),
 ) -> dict:
     """The changes between an earlier calibration ``previous`` (read from ``where``) and the new LEDs ``leds``.
 
@@ -144,16 +145,30 @@ def compare_calibrations(
     (``level`` against ``previous.light_level``, :func:`light_level`) straying beyond
     :data:`~nlipscalib.core.tolerances.LED_OVERALL_CHANGE` is one change, first: the shares cannot see it.
 
+    The places are the LED disks' (``emitters``, ``previous.emitters``: the physical LEDs) where both calibrations
+    fitted disks, else the point LEDs'; both repeat alike (the twin's 21 pairs of clean calibrations at 160x120:
+    disks 0.085 mm / 0.57 deg median, 0.43 mm / 2.65 deg at worst; points 0.087 / 0.57, 0.43 / 2.64; s33-ledswap), so
+    one set of tolerances serves both. What only one file holds is not compared, and said (``not_compared``): an
+    OLD file written before ``light_level`` (2026-12-06) cannot have all LEDs' light judged, disks in one file only
+    are compared as points.
+
     Returns
     -------
     dict, JSON-ready (the LED file's ``previous``): ``file`` (``where``), ``brightness`` (L,) ratios, ``moved_mm`` (L,),
-    ``turned_deg`` (L,) (NaN for an LED not compared), ``overall_brightness`` (all LEDs' light over OLD's; None where
-    either file has no ``light_level``), ``tolerances`` (the five), ``changes`` (one line per change, the overall one
-    first, then in LED order; empty when nothing changed beyond them).
+    ``turned_deg`` (L,) (NaN for an LED not compared), ``places`` ("disks" or "points": which LEDs' places those
+    are), ``overall_brightness`` (all LEDs' light over OLD's; None where either file has no ``light_level``),
+    ``not_compared`` (what either file lacks, in words: one item each; empty when all was compared), ``tolerances``
+    (the five), ``changes`` (one line per change, the overall one first, then in LED order; empty when nothing changed
+    beyond them).
     """
     left_out = set(previous.not_fitted) | {int(i) for i in not_fitted}
     ratio = led_brightness_ratios(previous.leds, leds, left_out)
-    old, new = led_arrays(previous.leds), led_arrays(leds)
+    disks = bool(previous.emitters) and len(emitters) == len(previous.emitters)
+    old, new = (
+        (led_arrays(previous.emitters), led_arrays(emitters))
+        if disks
+        else (led_arrays(previous.leds), led_arrays(leds))
+    )
     moved, turned = led_offsets(old[0], old[1], new[0], new[1])
     moved[sorted(left_out)], turned[sorted(left_out)] = np.nan, np.nan
     overall = None
@@ -167,6 +182,8 @@ def compare_calibrations(
         "brightness": [float(v) for v in ratio],
         "moved_mm": [float(v) for v in moved],
         "turned_deg": [float(v) for v in turned],
+        "places": "disks" if disks else "points",
+        "not_compared": not_compared(previous, where, level, bool(emitters)),
         "tolerances": {
             "overall_brightness": tolerances.LED_OVERALL_CHANGE,
             "group_brightness": tolerances.LED_GROUP_CHANGE,
@@ -176,6 +193,24 @@ def compare_calibrations(
         },
         "changes": [line for _, line in sorted(changes, key=lambda change: change[0])],
     }
+
+
+def not_compared(previous: LedFile, where: str | Path, level: dict | None, disks: bool) -> list[str]:
+    """What :func:`compare_calibrations` could not compare, one item each in words: all LEDs' light together where
+    ``previous`` (read from ``where``) records no ``light_level`` (written before 2026-12-06) or the new calibration
+    none (``level`` None), and the LED disks where only one of the two fitted them (``disks``: the new one did).
+
+    Why said: against a file written before ``light_level``, every LED dimmed alike read "no LED changed beyond the
+    tolerances" as if it had been judged (s33-ledswap's run with s32-ledaged's r8.json)."""
+    items = []
+    if previous.light_level is None:
+        items.append(f"all LEDs' light together ({where} records no light_level: written before 2026-12-06)")
+    elif level is None:
+        items.append("all LEDs' light together (this calibration records no light_level)")
+    if bool(previous.emitters) != disks:
+        holder = where if previous.emitters else "this calibration"
+        items.append(f"the LED disks (only {holder} holds them: the places compared as point LEDs)")
+    return items
 
 
 def _overall_change(

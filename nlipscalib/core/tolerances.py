@@ -788,6 +788,24 @@ pairs: 0.09 mm median, 0.24 95th percentile, 0.43 at worst; a larger capture rep
 LED_TURNED_DEG = 4.0
 """... or whose axis turned by more than this (degrees) (the same pairs: 0.57 deg median, 1.76 95th percentile, 2.64
 at worst)."""
+LED_EXCHANGE_MM = 1.0
+"""``nlips calibrate-leds``: LED images captured in each other's place (the wiring, the controller's LED order or the
+images' order) are named when each LED of the exchange was fitted at least this much (mm) nearer another LED's
+design place than its own (:func:`nlipscalib.core.led_exchange.exchanged_leds`), and :data:`LED_EXCHANGE_NEARER` times
+nearer. The twin's clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from
+their design places (the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and
+led_04.png exchanged: 4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
+LED_EXCHANGE_NEARER = 3.0
+"""... and at least this many times nearer. Why a ratio too: a sensor built off its design (LEDs 3 mm from their
+places, the farthest s31-ledfar starts from) has LEDs up to 1.3 mm nearer a neighbour's place on the default ring
+(4.66 mm apart: at best 1.66 mm from it, 1.8 times nearer), never 3 times; on a ring twice as dense (2.3 mm apart) an
+LED would have to be built 1.75 mm toward a neighbour's place to reach it."""
+IMAGE_EXCHANGE_GAIN = 0.1
+"""``nlips calibrate-leds`` of several captures: a capture whose LED images correlate at least this much better with
+another capture's images of other LEDs than with their own LED's (over the gel) holds them in another order
+(:func:`nlipscalib.core.led_exchange.exchanged_images`). The twin's 160x120 undeformed dome, seeds 7 and 8: an LED's
+images 0.9987 or more, two neighbours' 0.83 at most; led_03.png and led_04.png exchanged: 0.71 with their own, 0.999
+with each other's (gain 0.29; benchmarks/RESULTS.md, s33-ledswap)."""
 
 GEL_FRAME_SHARE_FOR_DISKS = 0.95
 """A whole-frame solve with point LEDs whose gel covers less of the frame than this (the camera sees past the gel:

@@ -230,6 +230,7 @@ def calibrate_leds(
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
+    _check_one_order(presses)  # captures in different LED orders: no joint fit means anything
     # a stale frame (an LED image repeating the one before it): out of that LED's fit, its LED held where no capture
     # holds its light
     presses, repeated_notes, held = without_repeated_images(presses)
@@ -245,8 +246,10 @@ def calibrate_leds(
     except LedFitRanOff as error:
         raise CaptureError(ran_off_line(presses, error.led, settings.initial)) from None
     _check_finite(cal, presses[0].folder)
+    # two neighbours' images exchanged: fitted each where its image shows it, unseen by the images' own check
+    exchange_notes = _exchanged_images(presses, cal.leds, initial, held, reorder_leds)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
-    notes = order_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
+    notes = order_notes + exchange_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
     notes += [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
@@ -308,6 +311,101 @@ def _in_shown_order(
             notes.append(f"{p.folder}: the LED images are out of order, fitted as captured (--keep-led-order)")
         out.append(p)
     return out, notes, applied
+
+
+EXCHANGE_REFUSED = (
+    "; not calibrated: put the images in the LEDs' order (their files, or images.leds in meta.json) and run again, or "
+    "pass --keep-led-order to calibrate each LED where its image shows it (right only for captures taken in this order)"
+)
+"""The tail of the LED calibration's refusal of LED images captured in each other's place (:func:`_exchanged_images`).
+
+Why refused, not written with a warning: the file would place each of those LEDs at the other's place, and every solve
+with it takes them so without a word (a solve cannot tell two neighbours' images apart either); a warning scrolls by in
+a script, the refusal costs one run again."""
+EXCHANGE_KEPT = (
+    "; calibrated as captured (--keep-led-order): each LED where its image shows it, right only for captures taken in "
+    "this order"
+)
+"""The tail of the warning of :func:`_exchanged_images` with ``--keep-led-order``."""
+
+
+def _exchanged_images(
+    presses: Sequence[Press], leds: Leds, initial: Leds | None, held: Sequence[int], reorder: bool
+) -> list[str]:
+    """The warning (``reorder`` False: ``--keep-led-order``) naming LED images captured in each other's place, told by
+    the fitted ``leds`` against the design's (``initial``, else the capture's meta.json LEDs:
+    :func:`nlipscalib.core.led_exchange.exchanged_leds`; ``held``: LEDs not fitted); [] when none. CaptureError with
+    that line when ``reorder`` (the default): :data:`EXCHANGE_REFUSED` says why."""
+    from ..core.led_exchange import exchanged_leds
+    from ..core.leds import led_arrays
+
+    design = led_arrays(tuple(initial) if initial is not None else presses[0].leds)[0]
+    fitted = led_arrays(leds)[0]
+    cycles = exchanged_leds(design, fitted, tuple(held))
+    if not cycles:
+        return []
+    names = image_names(presses[0])
+    folders = ", ".join(str(p.folder) for p in presses)
+    parts = []
+    for cycle in cycles:
+        files = [names[i] for i in cycle]
+        said = " and ".join(files) if len(files) == 2 else ", ".join(files[:-1]) + f" and {files[-1]} (a cycle)"
+        places = []
+        for k, i in enumerate(cycle):
+            j = cycle[(k + 1) % len(cycle)]
+            near, own = np.linalg.norm(fitted[i] - design[j]), np.linalg.norm(fitted[i] - design[i])
+            places.append(f"LED {i + 1} {near:.2f} mm from LED {j + 1}'s design place and {own:.2f} mm from its own")
+        parts.append(f"{said} look exchanged (fitted {', '.join(places)})")
+    line = (
+        f"{folders}: {'; '.join(parts)}: their images were captured in each other's place (the LED wiring, the "
+        "controller's LED order or the images' order)"
+    )
+    if reorder:
+        raise CaptureError(line + EXCHANGE_REFUSED)
+    return [line + EXCHANGE_KEPT]
+
+
+CHECK_ORDER_STEP = 4
+"""Every this-many-th gel pixel the captures' LED images are correlated on (:func:`_check_one_order`): 4,800 at
+160x120 (the twin's seeds: 0.9987 and more for one LED's images, 0.83 at most for neighbours'), ~60,000 at
+640x480."""
+
+
+def _check_one_order(presses: Sequence[Press]) -> None:
+    """CaptureError (one line naming the captures and images) when a capture's LED images hold the light of other LEDs'
+    images of the first capture (:func:`nlipscalib.core.led_exchange.exchanged_images`): the same sensor captured in
+    another LED order. Why before the fit: calibrated together, led_03.png and led_04.png exchanged in one of two
+    captures pulled LEDs 3 and 4 halfway and were refused as a contact naming LED 4's mounting (s33-ledswap)."""
+    from ..core.led_exchange import exchanged_images
+
+    first = presses[0]
+    for p in presses[1:]:
+        if first.reference is None or p.reference is None or p.camera.shape != first.camera.shape:
+            continue  # refused further on (no reference.npz, another sensor)
+        if len(p.leds) != len(first.leds):
+            continue
+        gel = np.isfinite(first.reference.depth) & np.isfinite(p.reference.depth)
+        pick = np.flatnonzero(gel.ravel())[::CHECK_ORDER_STEP]
+        cycles = exchanged_images(_gel_images(first, pick), _gel_images(p, pick))
+        if not cycles:
+            continue
+        names, theirs = image_names(p), image_names(first)
+        said = "; ".join(
+            f"{' and '.join(names[i] for i in cycle)} hold the light {first.folder}'s "
+            f"{' and '.join(theirs[cycle[(k + 1) % len(cycle)]] for k in range(len(cycle)))} hold"
+            for cycle in cycles
+        )
+        raise CaptureError(
+            f"{p.folder}: {said}: the captures' LED images are in different orders (the LED wiring, the controller's "
+            "LED order or the images' order changed between them); not calibrated: calibrate each capture alone (it "
+            "names images exchanged against the design), put the odd one's images in order, then calibrate them "
+            "together"
+        )
+
+
+def _gel_images(press: Press, pick: np.ndarray) -> np.ndarray:
+    """(L, len(pick)) float -- the capture's linear LED images at the flat pixel indices ``pick``, channels' mean."""
+    return press.linear_led_images.reshape(len(press.leds), -1, 3)[:, pick].mean(-1)
 
 
 def _check_finite(cal: LedCalibration, folder: Path) -> None:

@@ -125,6 +125,7 @@ def test_clean_captures_against_an_earlier_calibration_raise_no_alarm(twin_captu
         assert written["previous"]["file"] == str(previous)
         assert np.nanmax(np.abs(np.log(written["previous"]["brightness"]))) < 0.04
         assert abs(written["previous"]["overall_brightness"] - 1) < 0.01  # the twin's seeds: within 0.23 %
+        assert written["previous"]["not_compared"] == [] and written["previous"]["places"] == "disks"
     assert (
         json.loads(replaced.read_text(encoding="utf-8"))["leds"]
         != json.loads(first.read_text(encoding="utf-8"))["leds"]
@@ -170,3 +171,56 @@ def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_ca
         lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
         assert len(lines) == 1 and f"--previous {previous}: {why}" in lines[0], lines
         assert not out.exists()
+
+
+def test_a_twin_capture_with_two_led_images_exchanged_is_refused_naming_them(twin_captures, tmp_path, capsys, caplog):
+    """led_03.png and led_04.png exchanged (the wiring, or the capture's order): neighbours, so the images' own check
+    does not see it; the command calibrated LED 3 at LED 4's place and back, "reliable", and wrote the file without a
+    word. Now one line names both images, exit 2, nothing written; --keep-led-order writes them as captured with that
+    line as a warning. The clean captures of the fixture and the other tests calibrate without it."""
+    import shutil
+
+    root, first = twin_captures
+    swapped = tmp_path / "swapped"
+    shutil.copytree(root / "seed7", swapped)
+    (swapped / "led_03.png").rename(swapped / "x.png")
+    (swapped / "led_04.png").rename(swapped / "led_03.png")
+    (swapped / "x.png").rename(swapped / "led_04.png")
+    out = tmp_path / "leds.json"
+    capsys.readouterr()
+    assert main(["--no-progress", "calibrate-leds", str(swapped), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{swapped}: led_03.png and led_04.png look exchanged (fitted LED 3 0." in err, err
+    assert "captured in each other's place" in err and "--keep-led-order" in err and not out.exists()
+    caplog.clear()
+    assert main(["--no-progress", "calibrate-leds", str(swapped), "--out", str(out), "--keep-led-order"]) == 0
+    (said,) = [r.getMessage() for r in caplog.records if "look exchanged" in r.getMessage()]
+    assert said.endswith("right only for captures taken in this order") and "--keep-led-order" in said
+    assert said in json.loads(out.read_text(encoding="utf-8"))["warnings"]
+    assert "exchanged" not in first.read_text(encoding="utf-8")
+
+
+def test_an_earlier_file_without_light_level_or_disks_says_what_was_not_compared(twin_captures, tmp_path, capsys):
+    """An LED file written before light_level (2026-12-06) and without disks: the command said "no LED changed beyond
+    the tolerances" as if every LED's light together had been judged. Now the closing line and the file say what
+    was not compared, and the places are the point LEDs'."""
+    root, first = twin_captures
+    old = json.loads(first.read_text(encoding="utf-8"))
+    for key in ("light_level", "emitters", "reflectance_profile"):
+        old.pop(key, None)
+    older = tmp_path / "older.json"
+    older.write_text(json.dumps(old), encoding="utf-8")
+    out = tmp_path / "new.json"
+    capsys.readouterr()
+    assert (
+        main(["--no-progress", "calibrate-leds", str(root / "seed8"), "--out", str(out), "--previous", str(older)]) == 0
+    )
+    (closing,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith(f"against {older}")]
+    assert closing == (
+        f"against {older}: no LED changed beyond the tolerances; not compared: all LEDs' light together ({older} "
+        "records no light_level: written before 2026-12-06); the LED disks (only this calibration holds them: the "
+        "places compared as point LEDs)"
+    )
+    previous = json.loads(out.read_text(encoding="utf-8"))["previous"]
+    assert previous["places"] == "points" and len(previous["not_compared"]) == 2
+    assert previous["overall_brightness"] is None

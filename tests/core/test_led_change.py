@@ -158,3 +158,26 @@ def test_two_leds_in_each_others_place_are_one_exchange_and_a_moved_led_stays_mo
     assert exchange.startswith("LEDs 1 and 2 each sit where the other did in old.json"), exchange
     assert "captured in each other's place" in exchange
     assert moved.startswith("LED 7 sits 2.00 mm"), moved
+
+
+def test_what_only_one_file_holds_is_said_as_not_compared_and_disks_in_both_are_compared_as_disks():
+    """An OLD file written before light_level (s32-ledaged's r8.json, which holds disks): the command said "no LED
+    changed beyond the tolerances" with every LED's common light never judged, and compared the point LEDs though
+    both files held the disks. Now the disks' places are compared where both hold them (an LED disk moved 0.8 mm while
+    its point stayed: named), and what only one file holds is one item each of ``not_compared``."""
+    leds = synth.ring_leds(jitter=3)
+    disks = tuple(dataclasses.replace(led, position=tuple(np.add(led.position, (0.0, 0.0, 0.23)))) for led in leds)
+    moved = list(disks)
+    moved[5] = dataclasses.replace(disks[5], position=tuple(np.add(disks[5].position, (0.8, 0.0, 0.0))))
+    old = LedFile(tuple(leds), describe_sensor(synth.camera(), leds), emitters=disks, emitter_radius=1.8)
+    both = compare_calibrations(old, "old.json", leds, level=_level(), emitters=tuple(moved))
+    assert both["places"] == "disks" and both["moved_mm"][5] == pytest.approx(0.8)
+    assert both["not_compared"] == [
+        "all LEDs' light together (old.json records no light_level: written before 2026-12-06)"
+    ]
+    assert [line[:23] for line in both["changes"]] == ["LED 6 sits 0.80 mm and "]
+    points = compare_calibrations(old, "old.json", leds, level=_level())  # this calibration fitted no disks
+    assert points["places"] == "points" and points["changes"] == []
+    assert points["not_compared"][1] == "the LED disks (only old.json holds them: the places compared as point LEDs)"
+    full = _file(leds, level=_level())
+    assert compare_calibrations(full, "old.json", leds, level=_level())["not_compared"] == []

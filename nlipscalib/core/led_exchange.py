@@ -1,0 +1,114 @@
+"""LED images captured in each other's place, told by where their LEDs were fitted against the sensor's design.
+
+Two neighbouring LEDs' images exchanged (the LED wiring, the controller's LED order or the capture's image order) are
+not seen by the images alone: neighbours light the dome alike (their images correlate above the 0.5 the solve's
+check needs, :data:`nlipscalib.solver.led_checks.MATCH_CORRELATION`), so ``nlips calibrate-leds`` fits each LED where
+its image shows it, LED 3 at LED 4's place and back, and calls the fit reliable (the twin's 160x120 undeformed dome
+with led_03.png and led_04.png exchanged: both 4.68 mm from their design places, 0.19-0.28 mm from each other's;
+benchmarks/RESULTS.md, s33-ledswap). The best one-to-one assignment of the fitted LEDs to the design's places
+(:func:`scipy.optimize.linear_sum_assignment`, the Hungarian method SciPy keeps) names such an exchange when it is not
+the identity and explains the misfit by a wide margin (:func:`exchanged_leds`). Several captures calibrated together
+are first compared image by image (:func:`exchanged_images`): one holding its images in another order than the
+first is told by the images alone. In core beside the other LED comparisons (:mod:`nlipscalib.core.led_change`); the
+solver's calibration wires both.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from . import tolerances
+
+FAR_MM = 1e9
+"""The distance an LED not fitted is given to every place but its own (mm): it never takes another's."""
+
+
+def exchanged_leds(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ...] | list[int] = ()) -> list[list[int]]:
+    """The cycles of LEDs whose fitted places are each the design place of the next (two exchanged images: a pair).
+
+    The fitted LEDs are assigned one-to-one to the design's places at the least summed distance; each cycle of that
+    assignment (an LED assigned to another's place, which is assigned on, back to the first) is an exchange when every
+    LED of it sits at least :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_MM` nearer the place it is assigned than
+    its own, and :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_NEARER` times nearer.
+
+    Why both, and per LED: a sensor built off its design (an LED 3 mm from its place, the farthest the project's
+    starts are tried from, s31-ledfar) may sit nearer a neighbour's place than its own, but not 3 times nearer on the
+    default ring (neighbours 4.66 mm apart: at best 1.66 mm from it); an LED whose fit ran off onto a neighbour's place
+    makes a cycle with that neighbour, which did not move (0.2-0.5 mm from its own place: not nearer another's). A
+    clean calibration's point LEDs lie 0.19-0.51 mm from the design (twin, 160x120, seven seeds): 1 mm nearer another
+    place takes an exchange whatever the design's spacing.
+
+    Parameters
+    ----------
+    design : (L, 3) float, mm, camera frame -- the LEDs' places as designed (the calibration's start).
+    fitted : (L, 3) float, mm, camera frame -- the calibrated LEDs' places, in the same order.
+    left_out : LEDs (0-based) not fitted (kept at their start): never part of an exchange.
+
+    Returns
+    -------
+    list of list of int -- each exchange's LEDs (0-based), from its lowest, in the assignment's order (``[2, 3]``:
+    LED 3 sits at LED 4's place and LED 4 at LED 3's); empty when none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    design, fitted = np.asarray(design, np.float64), np.asarray(fitted, np.float64)
+    cost = np.linalg.norm(fitted[:, None, :] - design[None, :, :], axis=2)  # (fitted, design)
+    held = sorted(int(i) for i in left_out)
+    cost[held, :] = FAR_MM  # a held LED keeps its own place only
+    cost[held, held] = 0.0
+    rows, place = linear_sum_assignment(cost)
+    assigned = place[np.argsort(rows)]
+    own = np.diag(cost)
+    there = cost[np.arange(len(own)), assigned]
+    exchange = (own - there >= tolerances.LED_EXCHANGE_MM) & (own >= tolerances.LED_EXCHANGE_NEARER * there)
+    return _cycles(assigned, exchange)
+
+
+def exchanged_images(reference: np.ndarray, images: np.ndarray) -> list[list[int]]:
+    """The cycles of LED images of one capture that show the light another capture's images of other LEDs show: the
+    same sensor's captures in different LED orders.
+
+    Each image of ``images`` is assigned one-to-one to an image of ``reference`` at the largest summed correlation
+    (:func:`scipy.optimize.linear_sum_assignment`); a cycle of that assignment is an exchange when each of its images
+    correlates at least :data:`~nlipscalib.core.tolerances.IMAGE_EXCHANGE_GAIN` better with the image it is assigned
+    than with its own LED's. Why: the undeformed dome's images of one LED in two captures correlate 0.9987 or more
+    (the twin's 160x120 seeds 7 and 8), two neighbours' 0.83 at most; two of them exchanged in one capture, 0.71 with
+    their own and 0.999 with each other's. Calibrated together, such captures pulled both LEDs halfway (3 mm off) and
+    were refused as a contact "in LED 4's image: LED 4 sits 9.9 mm from the gel" (s33-ledswap).
+
+    Parameters
+    ----------
+    reference, images : (L, N) float -- two captures' LED images over the same N gel pixels (linear, e.g. the
+        channels' mean), in their captured order.
+
+    Returns
+    -------
+    list of list of int -- each exchange's images (0-based) in ``images``, from its lowest, in the assignment's order
+    (``[2, 3]``: image 3 shows what ``reference``'s image 4 shows, and image 4 what its image 3 shows); empty when none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    count = len(reference)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): no correlation
+        corr = np.nan_to_num(np.corrcoef(images, reference)[:count, count:], nan=-1.0)
+    rows, place = linear_sum_assignment(corr, maximize=True)
+    assigned = place[np.argsort(rows)]
+    gain = corr[np.arange(count), assigned] - np.diag(corr)
+    return _cycles(assigned, gain >= tolerances.IMAGE_EXCHANGE_GAIN)
+
+
+def _cycles(assigned: np.ndarray, exchange: np.ndarray) -> list[list[int]]:
+    """The cycles of the assignment ``assigned`` (each index to another) whose members are all ``exchange``."""
+    cycles, seen = [], set()
+    for start in range(len(assigned)):
+        if assigned[start] == start or start in seen:
+            continue
+        cycle, i = [], start
+        while i not in cycle:
+            cycle.append(i)
+            i = int(assigned[i])
+        seen.update(cycle)
+        if all(exchange[i] for i in cycle):
+            cycles.append(cycle)
+    return cycles
