@@ -178,6 +178,28 @@ def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
 
 
+@pytest.mark.parametrize(
+    ("val", "exclude", "said"),
+    [
+        ("press_a,nothere", None, "--val-presses nothere: not among its presses (press_a, "),
+        ("press_a", "press_a", "press_a given to both --val-presses and --exclude: give each to one"),
+        (None, None, "--val-presses holds all 6 presses left to train on (1 excluded): leave at least one"),
+    ],
+)
+def test_validation_presses_that_cannot_be_used_are_one_line_naming_the_dataset_and_why(
+    calib, tmp_path, capsys, val, exclude, said
+):
+    """`--val-presses P --exclude P` said "validation presses ['P'] are not in the dataset", though it is; every
+    press held out for validation said "no training presses left ..." without naming the dataset or the option."""
+    names = [n for n in calib.names if n != HELD_OUT]
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--val-presses", val or ",".join(names)]
+    assert main([*args, "--exclude", exclude or HELD_OUT, "--epochs", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(calib.folder / "index.json") in err[0] and said in err[0], err
+    assert not out.exists()
+
+
 def test_a_full_disk_as_the_checkpoint_is_rewritten_says_it_needs_room_for_a_second_copy(
     calib, tmp_path, capsys, monkeypatch
 ):
