@@ -106,6 +106,26 @@ def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):
     assert len(err) == 1 and "cut.pt" in err[0]
 
 
+def test_a_training_checkpoint_given_as_the_model_names_the_model_file(tmp_path, trained, capsys):
+    """MODEL.checkpoint.pt lies beside the model (the only .pt there while a training runs or after it stopped):
+    given to `nlips infer` or `nlips export` it was "not an NLiPsNet model file (format must be
+    'nlipscalib.nlipsnet')". Now the line says what it is and which file to give, or to finish the training."""
+    import torch
+
+    run = tmp_path / "net.0123456789ab.checkpoint.pt"  # a run's own checkpoint, its model not written yet
+    torch.save({"key": "k", "history": []}, run)
+    assert main(["export", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{run}: a training checkpoint" in err[0], err
+    assert f"run the same `nlips train` again to finish it, then give {tmp_path / 'net.pt'}" in err[0]
+    shutil.copy(trained, tmp_path / "net.pt")
+    published = tmp_path / "net.checkpoint.pt"
+    shutil.copy(run, published)
+    with pytest.raises(CaptureError, match=f"not the model file: give the model file {tmp_path / 'net.pt'}$"):
+        load_model(published)
+    load_model(tmp_path / "net.pt")  # the model itself still loads
+
+
 def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_path, capsys):
     other = tmp_path / "other_press"
     shutil.copytree(twin_presses / HELD_OUT, other)
