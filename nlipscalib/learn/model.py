@@ -364,6 +364,12 @@ def _check_model_path(path: Path) -> None:
         raise CaptureError(
             f"{path}: a training checkpoint (`nlips train` resumes from it), not the model file: {how} {model}"
         )
+    if path.suffix.lower() == ".npz":  # a dataset's sensor.npz or a result.npz given instead: it was "its entries
+        # inflate to 672640 bytes from a file of 433899 (torch.save stores them uncompressed)", true but no help
+        raise CaptureError(
+            f"{path}: a NumPy archive (a calibration dataset's or a result's arrays), not the model file: give the "
+            ".pt file from `nlips train`"
+        )
     if path.suffix.lower() == ".onnx":  # the export beside the model: it lacks the sensor and reference frame
         beside = path.with_suffix(".pt")
         hint = f" ({beside})" if beside.is_file() else ""

@@ -124,6 +124,10 @@ def test_a_training_checkpoint_given_as_the_model_names_the_model_file(tmp_path,
     with pytest.raises(CaptureError, match=f"not the model file: give the model file {tmp_path / 'net.pt'}$"):
         load_model(published)
     load_model(tmp_path / "net.pt")  # the model itself still loads
+    arrays = tmp_path / "sensor.npz"  # a calibration dataset's arrays: was "its entries inflate to ... bytes"
+    np.savez_compressed(arrays, a=np.zeros(1000))
+    with pytest.raises(CaptureError, match="sensor.npz: a NumPy archive .*, not the model file: give the .pt file"):
+        load_model(arrays)
 
 
 def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_path, capsys):
@@ -324,6 +328,16 @@ def test_cli_train_refuses_out_of_range_options_in_one_line_naming_them(calib, t
     assert len(lines) == 1 and "Traceback" not in err and f"error: {option} " in lines[0], err
     assert value.replace(",", ", ") in lines[0]  # the value as given (--hidden: as parsed)
     assert not out.exists() and not list(tmp_path.iterdir())  # refused before training
+
+
+def test_cli_train_into_a_folder_names_the_model_file_to_give(calib, tmp_path, capsys):
+    """`nlips train DS --out models` (a folder that exists) said "the model file must end in .pt"."""
+    models = tmp_path / "models"
+    models.mkdir()
+    assert main(["train", str(calib.folder), "--out", str(models), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"--out {models}: a folder; give the model file to write in it (e.g. " in lines[0]
+    assert not list(models.iterdir())
 
 
 @pytest.mark.parametrize(
