@@ -130,10 +130,10 @@ def run(args: argparse.Namespace) -> int:
             f"{root}: one press, not a folder of presses; its folder {root.parent} holds them and their "
             f"{REFERENCE_FOLDER}/ (give that), or name the undeformed capture with --reference to use this press alone"
         )
+    if not presses:  # before the reference: an empty or wrong folder was told to name one with --reference
+        raise no_presses_error(root)
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
-    if not presses:
-        raise no_presses_error(root)
     reference_fits(reference, presses)
     responses_agree(reference, presses)
     if args.leds is not None:

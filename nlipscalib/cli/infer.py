@@ -1203,10 +1203,12 @@ def _what_changed(old: dict, new: dict) -> list[str]:
             changes.append("an nlipscalib that recorded no library versions")
     else:
         text = lambda v: "not installed" if v is None else v  # noqa: E731
+        # a library the earlier result's backend did not run (torch after onnx) is not in its record, and was not
+        # missing: the backend named above says what changed ("torch not installed (now 2.13.0)" was said)
         changes += [
-            f"{k} {text(libraries.get(k))} (now {text(v)})"
+            f"{k} {text(libraries[k])} (now {text(v)})"
             for k, v in made["libraries"].items()
-            if libraries.get(k) != v
+            if k in libraries and libraries[k] != v
         ]
     return changes or ["a record that differs"]
 

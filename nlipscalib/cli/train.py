@@ -111,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError:
         raise ConfigError(f"--hidden must be like 256,256,128, got {args.hidden!r}") from None
     out = Path(args.out)
+    if out.is_dir():  # `--out models` for the folder to train into: the model file in it is meant
+        raise ConfigError(f"--out {out}: a folder; give the model file to write in it (e.g. {out / 'nlipsnet.pt'})")
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}

@@ -471,6 +471,17 @@ EXPOSURE_READBACK_RANGE = 4.0
 (:func:`nlipscalib.device.camera.reported_exposure_ms`: a shutter table of its own, 1/60 s for 16 ms; a minimum,
 1 ms for 0.5); further off, as no time at all (OpenCV's 0 or -1 where a backend reads nothing back): the asked one
 is kept."""
+
+VIDEO_FRAME_COUNT_SLACK = 2
+"""Frames a recorded video may end short of the count its container declares (with
+:data:`VIDEO_FRAME_COUNT_SLACK_SHARE`, the larger of the two) before it is taken as truncated."""
+VIDEO_FRAME_COUNT_SLACK_SHARE = 0.05
+"""A recorded video whose frames end more than this many frames, and more than this share of the count its
+container declares (OpenCV's ``CAP_PROP_FRAME_COUNT``), before that count is taken as truncated or damaged
+(:class:`nlipscalib.device.camera.OpenCVSource`: one error line after the frames read, not a quiet end). Why the
+slack: where a container holds no exact count (Matroska, a variable frame rate) FFmpeg estimates it from the
+duration and frame rate, a frame or a few percent off; a copy cut short or a recording stopped by a full disk
+loses far more (a 21-frame MJPEG AVI cut to 15 kB read 9 frames and ended with exit 0 before)."""
 CAMERA_CAL_MIN_TILT_SPREAD_DEG = 5.0
 """Camera calibration (:mod:`nlipscalib.device.camera_calibration`): views whose boards all face the same way
 (normals within this angle, deg) cannot separate the focal length from the board's distance: the fit then returns

@@ -29,7 +29,13 @@ import numpy as np
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
 from ..core.sensor_response import eight_bit_table, undo_tone_curve
-from ..core.tolerances import CAMERA_SETTING_ABS, CAMERA_SETTING_RTOL, EXPOSURE_READBACK_RANGE
+from ..core.tolerances import (
+    CAMERA_SETTING_ABS,
+    CAMERA_SETTING_RTOL,
+    EXPOSURE_READBACK_RANGE,
+    VIDEO_FRAME_COUNT_SLACK,
+    VIDEO_FRAME_COUNT_SLACK_SHARE,
+)
 
 if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
     import cv2
@@ -323,6 +329,8 @@ class OpenCVSource(FrameSource):
             self.gain = settings.gain
         else:
             self.exposure_ms, self.gain = None, None
+        self.declared_frames = None if self.live else declared_frame_count(self.cap)
+        self.frames_read = 0
         self.average = settings.average
         try:
             frame = self._grab()
@@ -340,6 +348,11 @@ class OpenCVSource(FrameSource):
         if not ok or frame is None:
             if self.live:  # unplugged, or stopped: a fault, not the end of a recording
                 raise CaptureError(f"camera {self.device}: no frame (the camera stopped)")
+            if cut_short(self.frames_read, self.declared_frames):
+                raise CaptureError(
+                    f"{self.device}: the video ends after {self.frames_read} of the {self.declared_frames} frames "
+                    "its container declares: truncated or damaged (a copy or recording cut short?)"
+                )
             raise EndOfFrames(f"camera {self.device}: no frame (end of file)")
         if frame.ndim == 2 and frame.shape[0] == 1 and self.live:
             # unconverted YUYV/MJPEG frames come as a flat byte buffer: only 16-bit grey (Y16) raw frames
@@ -351,6 +364,7 @@ class OpenCVSource(FrameSource):
             )
             return self._grab()
         out, self.bit_depth = to_stored(frame, f"camera {self.device}", self.tone_curve)
+        self.frames_read += 1
         return out
 
     def read(self) -> np.ndarray:
@@ -368,6 +382,21 @@ class OpenCVSource(FrameSource):
 
     def close(self) -> None:
         self.cap.release()
+
+
+def declared_frame_count(cap: cv2.VideoCapture) -> int | None:
+    """The frame count a recorded video's container declares (None: it declares none, OpenCV's 0 or -1)."""
+    count = cap.get(_cv2().CAP_PROP_FRAME_COUNT)
+    return int(count) if math.isfinite(count) and count > 0 else None
+
+
+def cut_short(frames_read: int, declared: int | None) -> bool:
+    """Whether a recording that ended after ``frames_read`` frames is truncated: further short of the ``declared``
+    count than an estimated count's error (:data:`nlipscalib.core.tolerances.VIDEO_FRAME_COUNT_SLACK`)."""
+    if declared is None:
+        return False
+    slack = max(VIDEO_FRAME_COUNT_SLACK, VIDEO_FRAME_COUNT_SLACK_SHARE * declared)
+    return declared - frames_read > slack
 
 
 OPENCV_SILENT = 0

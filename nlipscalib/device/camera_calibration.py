@@ -188,6 +188,7 @@ def calibrate(
     model: str = "fisheye",
     names: list[str] | None = None,
     target_name: str = "the board",
+    where: str | None = None,
 ) -> Calibration:
     """Fit intrinsics and distortion to detected board points.
 
@@ -198,6 +199,7 @@ def calibrate(
     model : "fisheye" or "brown"
     names : view names for the report (default: indices)
     target_name : what the images show, for the error message
+    where : the images' file or folder, named first in the error message (None: not named)
     """
     cv2 = _cv2()
     if model not in ("fisheye", "brown"):
@@ -213,7 +215,8 @@ def calibrate(
             else "check --pattern: inner corners of a checkerboard, squares of a ChArUco board, columns x rows"
         )
         raise CaptureError(
-            f"{target_name} was found in {len(used)} of {len(views)} images; at least {MIN_VIEWS} are needed ({why})"
+            f"{f'{where}: ' if where else ''}{target_name} was found in {len(used)} of {len(views)} images; at least "
+            f"{MIN_VIEWS} are needed ({why})"
         )
     # (1, N, 3) / (1, N, 2) float32: the layout both OpenCV 4 and 5 accept in fisheye.calibrate
     objs = [np.asarray(views[k][0], np.float32).reshape(1, -1, 3) for k in used]
@@ -294,4 +297,6 @@ def calibrate_images(paths: list[str | Path], target: Target, model: str = "fish
         views.append(target.detect(image))
     if size is None:
         raise CaptureError("no calibration images given")
-    return calibrate(views, size, model, [Path(p).name for p in paths], target.name)
+    folders = {str(Path(p).parent) for p in paths}  # the one folder they came from leads the line where too few
+    where = folders.pop() if len(folders) == 1 else None  # show the board (several folders: each image is named)
+    return calibrate(views, size, model, [Path(p).name for p in paths], target.name, where)

@@ -359,6 +359,17 @@ def _check_model_path(path: Path) -> None:
         models = sorted(p.name for p in path.glob("*.pt") if not p.name.endswith(".checkpoint.pt"))
         hint = f" (it holds {', '.join(models[:5])})" if models else ""
         raise CaptureError(f"{path}: a folder, not a model file: give the .pt file from `nlips train`{hint}")
+    if path.is_file() and (model := _model_of_checkpoint(path)) is not None:
+        how = "give the model file" if model.is_file() else "run the same `nlips train` again to finish it, then give"
+        raise CaptureError(
+            f"{path}: a training checkpoint (`nlips train` resumes from it), not the model file: {how} {model}"
+        )
+    if path.suffix.lower() == ".npz":  # a dataset's sensor.npz or a result.npz given instead: it was "its entries
+        # inflate to 672640 bytes from a file of 433899 (torch.save stores them uncompressed)", true but no help
+        raise CaptureError(
+            f"{path}: a NumPy archive (a calibration dataset's or a result's arrays), not the model file: give the "
+            ".pt file from `nlips train`"
+        )
     if path.suffix.lower() == ".onnx":  # the export beside the model: it lacks the sensor and reference frame
         beside = path.with_suffix(".pt")
         hint = f" ({beside})" if beside.is_file() else ""
@@ -368,6 +379,21 @@ def _check_model_path(path: Path) -> None:
         )
     if not path.is_file():
         raise CaptureError(f"{path}: model file is missing")
+
+
+def _model_of_checkpoint(path: Path) -> Path | None:
+    """The model file a training checkpoint's name belongs to (``MODEL.checkpoint.pt``, a run's
+    ``MODEL.<run>.checkpoint.pt``: learn.checkpoint), or None for another name.
+
+    Why: given to `nlips infer` or `nlips export` (it lies beside the model, a ``.pt`` too, and is the only one
+    while a training runs or after it was stopped) it was "not an NLiPsNet model file (format must be
+    'nlipscalib.nlipsnet')", which told neither what it is nor which file to give."""
+    import re
+
+    from .checkpoint import CHECKPOINT_FILE
+
+    stem = re.fullmatch(rf"(.+?)(\.[0-9a-f]{{12}})?\.{re.escape(CHECKPOINT_FILE)}", path.name)
+    return path.with_name(f"{stem.group(1)}.pt") if stem else None
 
 
 def read_torch_file(path: str | Path, what: str) -> object:

@@ -442,7 +442,32 @@ def _presses(
             f"{dataset.folder / INDEX_FILE}: training needs at least 2 presses (one to validate on); "
             f"{len(names)} of the {len(dataset.names)} it lists can be used{usable}{left}"
         )
+    if val_names:
+        _check_validation_presses(dataset, set(val_names), names, set(exclude))
     return split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
+
+
+def _check_validation_presses(
+    dataset: CalibrationDataset, val_names: set[str], usable: list[str], exclude: set[str]
+) -> None:
+    """One line naming the dataset and why ``val_names`` cannot be validated on: a press it does not list, one
+    also excluded or without the labels asked for (each was "not in the dataset"), or all the usable presses."""
+    where = dataset.folder / INDEX_FILE
+    if unknown := sorted(val_names - set(dataset.names)):
+        raise ConfigError(
+            f"{where}: --val-presses {', '.join(unknown)}: not among its presses ({', '.join(dataset.names)})"
+        )
+    if both := sorted(val_names & exclude):
+        raise ConfigError(f"{where}: {', '.join(both)} given to both --val-presses and --exclude: give each to one")
+    if unlabelled := sorted(val_names - set(usable)):
+        raise ConfigError(
+            f"{where}: --val-presses {', '.join(unlabelled)}: no ground truth to validate on (--labels true)"
+        )
+    if val_names >= set(usable):
+        raise ConfigError(
+            f"{where}: --val-presses holds all {len(usable)} presses left to train on"
+            f"{f' ({len(exclude)} excluded)' if exclude else ''}: leave at least one for training"
+        )
 
 
 EPOCH_SEED_STRIDE = 7919

@@ -242,6 +242,17 @@ def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path
     assert not out.exists()
 
 
+def test_calibrate_on_a_folder_without_presses_says_so_before_asking_for_a_reference(tmp_path, capsys):
+    """`nlips calibrate EMPTY` (or a folder of something else) said "no reference/ capture of the undeformed dome;
+    name one with --reference"; given one, it then said "no press folders found": the presses come first."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    out = tmp_path / "calibration"
+    assert main(["--no-progress", "calibrate", str(empty), "--out", str(out)]) == 2
+    _one_line_error(capsys.readouterr().err, f"{empty}: no press folders found")
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------------- a path given with ~
 def test_a_tilde_the_shell_left_alone_is_the_home_folder_not_a_folder_named_tilde(presses, tmp_path, monkeypatch):
     """`nlips solve PRESS --out=~/res` (bash expands no ~ after "=", nor inside quotes) made ./~/res in the working

@@ -138,6 +138,48 @@ def test_a_live_camera_that_stops_is_an_error_a_video_that_ends_is_not(tmp_path)
     video.close()
 
 
+def test_a_video_cut_short_of_its_declared_frames_is_an_error_after_its_frames(tmp_path):
+    """A video copied or recorded only in part (its container declaring 21 frames, 9 decodable) ended as a whole
+    recording does: `nlips infer VIDEO` and `nlips live --camera VIDEO` inferred 9 frames and exited 0, saying
+    nothing. Now the frames read are handed out, then one error naming the file and both counts."""
+    from nlipscalib.device.camera import EndOfFrames
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (160, 120))
+    noise = np.random.default_rng(0)
+    for _ in range(21):  # noisy frames: each compresses to about the same size
+        writer.write(noise.integers(0, 256, (120, 160, 3), dtype=np.uint8))
+    writer.release()
+    whole = open_source(str(path))
+    assert whole.declared_frames == 21
+    for _ in range(21):
+        whole.read()
+    with pytest.raises(EndOfFrames):
+        whole.read()
+    whole.close()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    video = open_source(str(cut))
+    read = 0
+    with pytest.raises(CaptureError, match=r"cut\.avi: the video ends after \d+ of the 21 frames") as ended:
+        while True:
+            video.read()
+            read += 1
+    assert not isinstance(ended.value, EndOfFrames) and 0 < read < 21
+    assert f"after {read} of the 21" in str(ended.value)
+    video.close()
+
+
+@pytest.mark.parametrize(
+    ("read", "declared", "short"),
+    [(9, 21, True), (19, 21, False), (18, 21, True), (950, 1000, False), (949, 1000, True), (5, None, False)],
+)
+def test_an_estimated_frame_count_a_few_frames_off_is_not_a_truncation(read, declared, short):
+    from nlipscalib.device.camera import cut_short
+
+    assert cut_short(read, declared) is short
+
+
 class FakeCap:
     """A camera that accepts some properties and ignores or clamps others."""
 

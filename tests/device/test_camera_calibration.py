@@ -123,6 +123,23 @@ def test_too_few_views_is_a_clear_error():
         calibrate([None, None], (80, 60))
 
 
+def test_too_few_views_in_a_folder_name_the_folder(tmp_path, capsys):
+    """`nlips calibrate-camera frames --pattern 8x6 ...` on images without the board said "the 8x6 checkerboard was
+    found in 0 of 6 images ..." without naming where the images came from."""
+    from nlipscalib.cli import main
+
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for k in range(2):
+        cv2.imwrite(str(shots / f"v{k}.png"), np.full((60, 80), 128, np.uint8))
+    assert (
+        main(["calibrate-camera", str(shots), "--pattern", "8x6", "--square", "3", "--out", str(tmp_path / "c.json")])
+        == 2
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{shots}: the 8x6 checkerboard was found in 0 of 2 images" in err[0], err
+
+
 def test_too_few_images_each_showing_the_board_asks_for_more_not_for_another_pattern(views):
     """`nlips calibrate-camera one.png` (the board found in 1 of 1 images) was told to check --pattern."""
     detected = Target(PATTERN, SQUARE).detect(views[0])

@@ -679,6 +679,28 @@ def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tin
     assert f"{out / 'b_cube'}: replacing the result of torch {metadata.version('torch')} (now 2.6.0)" in caplog.text
 
 
+def test_a_library_another_backend_ran_is_not_called_missing_when_the_backend_changes():
+    """`nlips infer MODEL PRESS --backend torch` over an onnx result logged "replacing the result of other options
+    (backend 'onnx', now 'torch'); torch not installed (now 2.13.0+cpu)": the onnx result records onnxruntime, not
+    torch, which was installed all along. Now the backend alone is named; a library both record still is."""
+    from nlipscalib.cli.infer import _what_changed
+
+    def report(backend, libraries):
+        settings = {"model_digest": "m", "backend": backend, "depth": True}
+        provenance = {"key": backend + str(libraries), "settings": settings, "inputs": {"frame": "f"}}
+        provenance |= {"software_version": "0.1.0", "code": "c", "libraries": libraries}
+        return {"model": "/m.pt", "provenance": provenance}
+
+    onnx = report("onnx", {"numpy": "2.4.6", "onnxruntime": "1.32.0", "scipy": "1.17.1"})
+    torch = report("torch", {"numpy": "2.4.6", "torch": "2.13.0+cpu", "scipy": "1.17.1"})
+    assert _what_changed(onnx, torch) == ["other options (backend 'onnx', now 'torch')"]
+    assert _what_changed(torch, onnx) == ["other options (backend 'torch', now 'onnx')"]
+    newer = report("torch", {"numpy": "2.4.7", "torch": "2.13.0+cpu", "scipy": "1.17.1"})
+    assert _what_changed(torch, newer) == ["numpy 2.4.6 (now 2.4.7)"]
+    gone = report("torch", {"numpy": "2.4.6", "torch": None, "scipy": "1.17.1"})
+    assert _what_changed(torch, gone) == ["torch 2.13.0+cpu (now not installed)"]
+
+
 def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model, tmp_path, capsys, caplog):
     """A result missing, a killed write's temporary folder beside one, a damaged one, a missing points.ply."""
     import logging

@@ -106,6 +106,30 @@ def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):
     assert len(err) == 1 and "cut.pt" in err[0]
 
 
+def test_a_training_checkpoint_given_as_the_model_names_the_model_file(tmp_path, trained, capsys):
+    """MODEL.checkpoint.pt lies beside the model (the only .pt there while a training runs or after it stopped):
+    given to `nlips infer` or `nlips export` it was "not an NLiPsNet model file (format must be
+    'nlipscalib.nlipsnet')". Now the line says what it is and which file to give, or to finish the training."""
+    import torch
+
+    run = tmp_path / "net.0123456789ab.checkpoint.pt"  # a run's own checkpoint, its model not written yet
+    torch.save({"key": "k", "history": []}, run)
+    assert main(["export", str(run)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{run}: a training checkpoint" in err[0], err
+    assert f"run the same `nlips train` again to finish it, then give {tmp_path / 'net.pt'}" in err[0]
+    shutil.copy(trained, tmp_path / "net.pt")
+    published = tmp_path / "net.checkpoint.pt"
+    shutil.copy(run, published)
+    with pytest.raises(CaptureError, match=f"not the model file: give the model file {tmp_path / 'net.pt'}$"):
+        load_model(published)
+    load_model(tmp_path / "net.pt")  # the model itself still loads
+    arrays = tmp_path / "sensor.npz"  # a calibration dataset's arrays: was "its entries inflate to ... bytes"
+    np.savez_compressed(arrays, a=np.zeros(1000))
+    with pytest.raises(CaptureError, match="sensor.npz: a NumPy archive .*, not the model file: give the .pt file"):
+        load_model(arrays)
+
+
 def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_path, capsys):
     other = tmp_path / "other_press"
     shutil.copytree(twin_presses / HELD_OUT, other)
@@ -176,6 +200,28 @@ def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
     assert main([*args, "--val-presses", "press_a, press_b", "--exclude", f" {HELD_OUT} ,", "--no-onnx"]) == 0
     info = load_model(out).info
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
+
+
+@pytest.mark.parametrize(
+    ("val", "exclude", "said"),
+    [
+        ("press_a,nothere", None, "--val-presses nothere: not among its presses (press_a, "),
+        ("press_a", "press_a", "press_a given to both --val-presses and --exclude: give each to one"),
+        (None, None, "--val-presses holds all 6 presses left to train on (1 excluded): leave at least one"),
+    ],
+)
+def test_validation_presses_that_cannot_be_used_are_one_line_naming_the_dataset_and_why(
+    calib, tmp_path, capsys, val, exclude, said
+):
+    """`--val-presses P --exclude P` said "validation presses ['P'] are not in the dataset", though it is; every
+    press held out for validation said "no training presses left ..." without naming the dataset or the option."""
+    names = [n for n in calib.names if n != HELD_OUT]
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--val-presses", val or ",".join(names)]
+    assert main([*args, "--exclude", exclude or HELD_OUT, "--epochs", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(calib.folder / "index.json") in err[0] and said in err[0], err
+    assert not out.exists()
 
 
 def test_a_full_disk_as_the_checkpoint_is_rewritten_says_it_needs_room_for_a_second_copy(
@@ -282,6 +328,16 @@ def test_cli_train_refuses_out_of_range_options_in_one_line_naming_them(calib, t
     assert len(lines) == 1 and "Traceback" not in err and f"error: {option} " in lines[0], err
     assert value.replace(",", ", ") in lines[0]  # the value as given (--hidden: as parsed)
     assert not out.exists() and not list(tmp_path.iterdir())  # refused before training
+
+
+def test_cli_train_into_a_folder_names_the_model_file_to_give(calib, tmp_path, capsys):
+    """`nlips train DS --out models` (a folder that exists) said "the model file must end in .pt"."""
+    models = tmp_path / "models"
+    models.mkdir()
+    assert main(["train", str(calib.folder), "--out", str(models), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"--out {models}: a folder; give the model file to write in it (e.g. " in lines[0]
+    assert not list(models.iterdir())
 
 
 @pytest.mark.parametrize(
