@@ -480,6 +480,8 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
     captured = any(is_press_folder(d) for d in out.iterdir() if d.is_dir())
     if path.exists() and captured:
         _check_session_record(path, described)
+    if why := _rendered_by_the_twin(out):
+        raise CaptureError(why)
     if why := _captured_by_another_sensor(out, rig):
         # session.json records no LED ring or dome, and may be absent (a folder of `nlips dataset`, or one removed
         # as an unreadable one's message says): each press's meta.json records the sensor it was captured with
@@ -564,6 +566,30 @@ def _camera_difference(before: dict, now: dict) -> str:
         {k: before.get(k) for k in ("camera", "n_leds")}, {k: now[k] for k in ("camera", "n_leds")}
     )
     return ", ".join(changes[:2]) + (" and more" if len(changes) > 2 else "")
+
+
+def _rendered_by_the_twin(out: Path) -> str | None:
+    """Why ``out`` cannot hold this session, naming its first press folder rendered by the twin (meta.json
+    ``provenance.source`` "sim": ``nlips render``, ``nlips dataset``), or None.
+
+    Why: ``nlips capture --emulate nlipstac --out RENDERS`` into a folder of the twin's renders of the same sensor
+    kept every render as "already captured" and wrote session.json around them, exit 0 (another sensor's renders
+    were refused, as other presses); on a real sensor whose design the renders share, its reference and presses
+    would have been the twin's images. A session holds only what it captured."""
+    from ..core.press_meta import read_meta
+
+    folders = sorted((d for d in out.iterdir() if d.is_dir()), key=lambda d: (d.name != REFERENCE_NAME, d.name))
+    for folder in (d for d in folders if is_press_folder(d)):
+        try:
+            provenance = read_meta(folder).get("provenance")
+        except ValueError:  # CaptureError: a damaged meta.json, captured again as _damaged says
+            continue
+        if isinstance(provenance, dict) and provenance.get("source") == "sim":
+            return (
+                f"{folder}: a press rendered by the twin (nlips render or nlips dataset), not captured: a capture "
+                "session keeps only the presses it captured; capture into a new --out folder"
+            )
+    return None
 
 
 def _captured_by_another_sensor(out: Path, rig: Rig) -> str | None:
