@@ -260,10 +260,13 @@ def _check_replaceable(out: Path) -> None:
     refuses the same, tests/test_pipeline.py)."""
     from ..core.errors import ConfigError
     from ..core.press_folders import is_press_folder
+    from ..core.press_meta import SOURCE_SENSOR, press_source
 
     if not (out.exists() or out.is_symlink()):
         return
-    if out.is_dir() and is_press_folder(out) and _captured_on_a_sensor(out):
+    if out.is_dir() and is_press_folder(out) and press_source(out) == SOURCE_SENSOR:
+        # it said "rendered from a different scene, press or seed (...: an older nlipscalib rendered it)" and
+        # --overwrite then deleted the capture
         raise ConfigError(
             f"{out}: holds a press captured on a sensor (nlips capture), not a twin render; nothing is replaced, "
             "even with --overwrite (a press cannot be rendered back): render into another --out"
@@ -276,21 +279,6 @@ def _check_replaceable(out: Path) -> None:
             "--overwrite: choose another --out"
         )
     raise ConfigError(f"{out}: a file where a folder is needed (choose another --out, or move the file)")
-
-
-def _captured_on_a_sensor(folder: Path) -> bool:
-    """True when the press folder's meta.json says a sensor captured it (``provenance.source`` "device": ``nlips
-    capture``, the real sensor or its emulator).
-
-    Why: ``nlips render --out SESSION/press_0001`` said the folder held "a press rendered from a different scene,
-    press or seed (...: an older nlipscalib rendered it)", and ``--overwrite`` then deleted the captured press."""
-    from ..core.press_meta import read_meta
-
-    try:
-        provenance = read_meta(folder).get("provenance")
-    except ValueError:  # a damaged meta.json: _up_to_date names it
-        return False
-    return isinstance(provenance, dict) and provenance.get("source") == "device"
 
 
 def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: int | None) -> bool:

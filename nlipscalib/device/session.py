@@ -576,15 +576,11 @@ def _rendered_by_the_twin(out: Path) -> str | None:
     kept every render as "already captured" and wrote session.json around them, exit 0 (another sensor's renders
     were refused, as other presses); on a real sensor whose design the renders share, its reference and presses
     would have been the twin's images. A session holds only what it captured."""
-    from ..core.press_meta import read_meta
+    from ..core.press_meta import SOURCE_TWIN, press_source
 
     folders = sorted((d for d in out.iterdir() if d.is_dir()), key=lambda d: (d.name != REFERENCE_NAME, d.name))
     for folder in (d for d in folders if is_press_folder(d)):
-        try:
-            provenance = read_meta(folder).get("provenance")
-        except ValueError:  # CaptureError: a damaged meta.json, captured again as _damaged says
-            continue
-        if isinstance(provenance, dict) and provenance.get("source") == "sim":
+        if press_source(folder) == SOURCE_TWIN:
             return (
                 f"{folder}: a press rendered by the twin (nlips render or nlips dataset), not captured: a capture "
                 "session keeps only the presses it captured; capture into a new --out folder"
