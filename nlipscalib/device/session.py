@@ -368,6 +368,19 @@ def run_session(
     return status
 
 
+def check_resumable(rig: Rig, out: str | Path, cfg: SessionConfig) -> None:
+    """Refuse now, as :func:`run_session` would, a folder ``out`` this session cannot be captured into (another
+    sensor's or settings' presses, the twin's renders); nothing to check where ``out`` does not exist yet.
+
+    Why: the emulated sensor renders its whole script before the session starts; a refusal then came after
+    20 s of renders at 160x120 (minutes at full size) that were thrown away."""
+    out = Path(out)
+    if out.is_dir():
+        rig.check()
+        clean_interrupted(out)  # as run_session: a killed run's half-written folder is no press to compare
+        _check_same_session(out, rig, cfg)
+
+
 def captured_folders(out: str | Path, presses: int) -> list[str]:
     """The folders of the session ``out`` (its reference, then ``presses`` presses) captured whole so far, in
     capture order: what a session stopped part-way (Ctrl-C, SIGTERM) kept, and what a run again keeps. A folder
