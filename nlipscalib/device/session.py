@@ -38,7 +38,7 @@ from ..core.capture import write_press
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import Led, tricolor_colors
 from ..core.press_folders import is_press_folder
-from ..core.press_meta import REFERENCE_FOLDER, led_frame_name
+from ..core.press_meta import REFERENCE_FOLDER, SOURCE_SENSOR, led_frame_name
 from ..core.sensor_record import setting_differences
 from ..core.sensor_response import SensorResponse, linearise
 from ..core.surface_files import Reference
@@ -297,7 +297,7 @@ def capture_press(
             )
         operator.retake(index, f"the object moved ({moved[-1]:.2%} of the pixels changed)")
     provenance = dict(rig.provenance) | {
-        "source": "device",
+        "source": SOURCE_SENSOR,
         "captured_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "attempts": len(moved),
         "moved_fraction": moved,
