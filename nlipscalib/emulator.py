@@ -4,10 +4,12 @@ This is the one module besides cli/ that imports both sim/ and device/: it lets 
 (``nlips capture``: LED protocol, camera flushing, sessions, movement checks) run without hardware.
 
 How a frame is made: each scripted surface (the undeformed dome, each press, a press after it moved)
-is rendered once with every LED in its own channel (``sim.render.surface.render_surface``). A frame is
-the sum of those images weighted by the colours the LED board has latched right now (``latched / 255``
-per channel), scaled by the scene's exposure and passed through the scene's sensor noise model, with a
-fresh noise draw per frame, as a real sensor gives.
+is rendered once with every LED in its own channel (``sim.render.surface.render_surface``) and seen through
+the scene's lens (``sim.camera_effects.apply_lens``: defocus, vignetting), as the twin's own captures are. A frame
+is the sum of those images weighted by the colours the LED board has latched right now (``latched / 255``
+per channel), scaled by the scene's exposure and passed through the scene's sensor noise model and response
+(``sim.noise.apply_noise``, as ``sim.press.camera_capture``; its black level the stated one), with a fresh noise
+draw per frame, as a real sensor gives.
 
 Like a real UVC camera, the virtual camera delivers frames with a delay (``latency_frames``): a frame
 read right after an LED change still shows the old light, so a session that does not flush fails. Like a webcam
@@ -31,10 +33,11 @@ from .core.errors import ConfigError
 from .core.sensor_response import SensorResponse, linear_to_srgb
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
+from .sim.camera_effects import apply_lens
 from .sim.indent import PressConfig, apply_press
 from .sim.noise import apply_noise
 from .sim.press import press_seed, render_identity, scene_exposure, undeformed_mesh
-from .sim.scene import SceneConfig
+from .sim.scene import CameraEffectsConfig, SceneConfig
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +110,11 @@ class TwinRenders:
                 mesh, contact, press_dict = gel.mesh, np.asarray(gel.contact, bool), to_mapping(press)
             # the twin's own seed for this press: the same render a direct `nlips render` would make
             seed = press_seed(self.scene.render.seed, press_dict)
-            self.cache[key] = render_surface(self.scene, mesh, contact, seed=seed).images
+            images = render_surface(self.scene, mesh, contact, seed=seed).images
+            # through the lens as the twin's captures (sim.press.camera_capture): linear in the light, so it commutes
+            # with the LED weighting of each frame and is applied once per surface. Without it the emulated frames
+            # lacked the scene's defocus and vignetting the twin's renders of the same presses have
+            self.cache[key] = apply_lens(images, self.scene.camera_model(), self.scene.camera_effects)
         return self.cache[key]
 
 
@@ -214,6 +221,10 @@ class EmulatedCamera(FrameSource):
         self.surface: PressConfig | None = None
         self.pending: tuple[int, PressConfig] | None = None
         self.frames_read = 0
+        self.press_index: int | None = None
+        """The session's press shown (:meth:`show`'s ``index``; None: a stream, whose frames share one noise stream)."""
+        self.press_frames = 0
+        """Frames read since the press ``press_index`` was shown: with it and the seed, each frame's noise draw."""
         self.pipeline: collections.deque = collections.deque()
 
     @property
@@ -225,12 +236,15 @@ class EmulatedCamera(FrameSource):
     ) -> None:
         """The gel now looks like ``surface``; if ``moves_to``, it changes to that after ``after`` more frames.
 
-        ``index``: the session's press number (0: the reference). Its frames' noise then starts from the seed and
-        that number alone, not from the frames read before: a session resumed in a new process (after a kill)
-        captures each press as one uninterrupted run does, where a single stream gave every press after the
-        resume other noise."""
+        ``index``: the session's press number (0: the reference). Each of its frames' noise is then drawn from the
+        seed, that number and the frame's place since the press was shown alone, not from the frames read before:
+        a session resumed in a new process (after a kill) captures each press as one uninterrupted run does, where a
+        single stream gave every press after the resume other noise. Per frame, not per press: the frames flushed
+        after the press differ between the two runs (an uninterrupted run's camera still delivers the press before,
+        a new process's the press itself), and a shared stream's draws hang on what a frame shows (dim pixels draw
+        Poisson noise, bright ones normal), so the first press after a resume still came out other."""
         if index is not None:
-            self.rng = np.random.default_rng((self.seed, index))
+            self.press_index, self.press_frames = index, 0
         self.surface = surface
         self.pending = (self.frames_read + after, moves_to) if moves_to is not None else None
 
@@ -246,11 +260,32 @@ class EmulatedCamera(FrameSource):
         images = self.renders.images(surface)
         lit = np.flatnonzero(colors.any(axis=1))  # most frames light one LED or none: skip the dark ones
         linear = np.einsum("lhwc,lc->hwc", images[lit], colors[lit], dtype=np.float32)
-        noise = self.renders.scene.noise
-        stored = apply_noise(linear, self.renders.exposure * self.exposure_scale, noise, self.rng)
+        scene = self.renders.scene
+        stored = apply_noise(
+            linear, self.renders.exposure * self.exposure_scale, scene.noise, self._frame_rng(), self._effects()
+        )
+        noise = scene.noise
         if self.encoding is None:
             return stored
         return encode_frame(stored, noise.bit_depth, noise.black_level, EMULATED_TONE_CURVES[self.encoding])
+
+    def _effects(self) -> CameraEffectsConfig:
+        """The scene's camera effects on the stored values (its response), as in the twin's captures, but its black
+        level exactly the one the session states (``black_level_error`` 0).
+
+        Why not the twin's error too: it is a stated level off from the true one, which the device path's own
+        ``--black-level`` stands for; under a tone curve (``--emulate-tone-curve gamma2.2``) its 3 DN became 10 codes
+        of 255 and ``nlips calibrate-camera-response --emulate`` refused the emulated camera as one adding a black
+        level. The dark frame subtracts it either way."""
+        return dataclasses.replace(self.renders.scene.camera_effects, black_level_error=0.0)
+
+    def _frame_rng(self) -> np.random.Generator:
+        """The noise generator of the frame being read: its own, from the seed, the press and its place in the
+        press (:meth:`show`), or the stream's one (no press shown)."""
+        if self.press_index is None:
+            return self.rng
+        self.press_frames += 1
+        return np.random.default_rng((self.seed, self.press_index, self.press_frames - 1))
 
 
 class ScriptedOperator(Operator):

@@ -323,7 +323,7 @@ def _session_config(args: argparse.Namespace, tricolor_level: int | None):
 
 
 def _run_emulated(args: argparse.Namespace):
-    from ..device.session import run_session
+    from ..device.session import check_resumable, run_session
     from ..emulator import default_script, load_script, open_emulated_sensor
     from ..sim.scene import load_scene
     from .options import check_size_pair
@@ -357,6 +357,7 @@ def _run_emulated(args: argparse.Namespace):
     ) as sensor:
         sensor.rig.provenance.update(response_provenance(args))
         cfg = _session_config(args, sensor.tricolor_level)
+        check_resumable(sensor.rig, args.out, cfg)  # before the renders, which a refusal would throw away
         sensor.prerender(progress=bars_enabled())
         return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
 

@@ -260,9 +260,17 @@ def _check_replaceable(out: Path) -> None:
     refuses the same, tests/test_pipeline.py)."""
     from ..core.errors import ConfigError
     from ..core.press_folders import is_press_folder
+    from ..core.press_meta import SOURCE_SENSOR, press_source
 
     if not (out.exists() or out.is_symlink()):
         return
+    if out.is_dir() and is_press_folder(out) and press_source(out) == SOURCE_SENSOR:
+        # it said "rendered from a different scene, press or seed (...: an older nlipscalib rendered it)" and
+        # --overwrite then deleted the capture
+        raise ConfigError(
+            f"{out}: holds a press captured on a sensor (nlips capture), not a twin render; nothing is replaced, "
+            "even with --overwrite (a press cannot be rendered back): render into another --out"
+        )
     if out.is_dir() and (is_press_folder(out) or not any(out.iterdir())):
         return
     if out.is_dir():

@@ -56,6 +56,28 @@ def read_meta(folder: str | Path) -> dict:
     return meta
 
 
+SOURCE_TWIN = "sim"
+"""meta.json ``provenance.source`` of a press the twin rendered (``nlips render``, ``nlips dataset``)."""
+SOURCE_SENSOR = "device"
+"""meta.json ``provenance.source`` of a press captured on a sensor (``nlips capture``: the real one or its emulator)."""
+
+
+def press_source(folder: str | Path) -> str | None:
+    """What made the press folder ``folder``: its meta.json ``provenance.source`` (:data:`SOURCE_TWIN`,
+    :data:`SOURCE_SENSOR`), or None where meta.json is missing, unreadable or records none.
+
+    Read leniently (only that key): it decides which command may write over or around a folder, before (and
+    whatever) the folder's other checks say."""
+    import json
+
+    try:
+        provenance = json.loads((Path(folder) / META_FILE).read_text(encoding="utf-8")).get("provenance")
+    except (OSError, ValueError, AttributeError):
+        return None
+    source = provenance.get("source") if isinstance(provenance, dict) else None
+    return source if isinstance(source, str) else None
+
+
 def image_size(folder: str | Path) -> tuple[int, int]:
     """(width, height) in pixels of a press folder's images, from its meta.json (:func:`read_meta`'s errors)."""
     camera = Camera.from_dict(read_meta(folder)["camera"])

@@ -38,7 +38,7 @@ from ..core.capture import write_press
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import Led, tricolor_colors
 from ..core.press_folders import is_press_folder
-from ..core.press_meta import REFERENCE_FOLDER, led_frame_name
+from ..core.press_meta import REFERENCE_FOLDER, SOURCE_SENSOR, led_frame_name
 from ..core.sensor_record import setting_differences
 from ..core.sensor_response import SensorResponse, linearise
 from ..core.surface_files import Reference
@@ -297,7 +297,7 @@ def capture_press(
             )
         operator.retake(index, f"the object moved ({moved[-1]:.2%} of the pixels changed)")
     provenance = dict(rig.provenance) | {
-        "source": "device",
+        "source": SOURCE_SENSOR,
         "captured_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "attempts": len(moved),
         "moved_fraction": moved,
@@ -366,6 +366,19 @@ def run_session(
         if k > 0:
             operator.release(k)
     return status
+
+
+def check_resumable(rig: Rig, out: str | Path, cfg: SessionConfig) -> None:
+    """Refuse now, as :func:`run_session` would, a folder ``out`` this session cannot be captured into (another
+    sensor's or settings' presses, the twin's renders); nothing to check where ``out`` does not exist yet.
+
+    Why: the emulated sensor renders its whole script before the session starts; a refusal then came after
+    20 s of renders at 160x120 (minutes at full size) that were thrown away."""
+    out = Path(out)
+    if out.is_dir():
+        rig.check()
+        clean_interrupted(out)  # as run_session: a killed run's half-written folder is no press to compare
+        _check_same_session(out, rig, cfg)
 
 
 def captured_folders(out: str | Path, presses: int) -> list[str]:
@@ -480,6 +493,8 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
     captured = any(is_press_folder(d) for d in out.iterdir() if d.is_dir())
     if path.exists() and captured:
         _check_session_record(path, described)
+    if why := _rendered_by_the_twin(out):
+        raise CaptureError(why)
     if why := _captured_by_another_sensor(out, rig):
         # session.json records no LED ring or dome, and may be absent (a folder of `nlips dataset`, or one removed
         # as an unreadable one's message says): each press's meta.json records the sensor it was captured with
@@ -564,6 +579,26 @@ def _camera_difference(before: dict, now: dict) -> str:
         {k: before.get(k) for k in ("camera", "n_leds")}, {k: now[k] for k in ("camera", "n_leds")}
     )
     return ", ".join(changes[:2]) + (" and more" if len(changes) > 2 else "")
+
+
+def _rendered_by_the_twin(out: Path) -> str | None:
+    """Why ``out`` cannot hold this session, naming its first press folder rendered by the twin (meta.json
+    ``provenance.source`` "sim": ``nlips render``, ``nlips dataset``), or None.
+
+    Why: ``nlips capture --emulate nlipstac --out RENDERS`` into a folder of the twin's renders of the same sensor
+    kept every render as "already captured" and wrote session.json around them, exit 0 (another sensor's renders
+    were refused, as other presses); on a real sensor whose design the renders share, its reference and presses
+    would have been the twin's images. A session holds only what it captured."""
+    from ..core.press_meta import SOURCE_TWIN, press_source
+
+    folders = sorted((d for d in out.iterdir() if d.is_dir()), key=lambda d: (d.name != REFERENCE_NAME, d.name))
+    for folder in (d for d in folders if is_press_folder(d)):
+        if press_source(folder) == SOURCE_TWIN:
+            return (
+                f"{folder}: a press rendered by the twin (nlips render or nlips dataset), not captured: a capture "
+                "session keeps only the presses it captured; capture into a new --out folder"
+            )
+    return None
 
 
 def _captured_by_another_sensor(out: Path, rig: Rig) -> str | None:

@@ -11,7 +11,7 @@ from pathlib import Path
 from ..core import said_once
 from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..core.press_folders import is_press_folder
-from ..core.press_meta import META_FILE
+from ..core.press_meta import META_FILE, SOURCE_SENSOR, press_source
 from .dataset_spec import PressJob
 from .indent import PressConfig
 from .scene import SceneConfig
@@ -85,6 +85,14 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     """Finished presses made from another spec, or with a damaged meta.json, are an error (or
     re-rendered with ``overwrite``); ones of this spec that other twin code or render libraries made are kept with a
     warning (re-rendered with ``overwrite``)."""
+    captured = [j.name for j in jobs if is_press_folder(out / j.name) and press_source(out / j.name) == SOURCE_SENSOR]
+    if captured:
+        # said "rendered from a different scene or spec (...: an older nlipscalib rendered it)", and --overwrite
+        # then rendered over the captured presses
+        raise ConfigError(
+            f"{out / captured[0]}: a press captured on a sensor (nlips capture), not a twin render; nothing is "
+            "replaced, even with --overwrite: render the dataset into a new folder"
+        )
     if overwrite:
         return
     found = [j for j in jobs if is_press_folder(out / j.name)]

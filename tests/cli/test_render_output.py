@@ -195,3 +195,30 @@ def test_a_render_whose_meta_json_is_cut_short_is_named_so_not_another_scene(tmp
     capsys.readouterr()
     assert main([*TINY, "--out", str(out)]) == 0  # whole again, and this very render
     assert "nothing to do" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]], ids=["plain", "overwrite"])
+def test_a_press_captured_on_a_sensor_is_never_replaced_by_a_render(tmp_path, monkeypatch, capsys, overwrite):
+    """`nlips render --out SESSION/press_0001` said the captured press was "rendered from a different scene, press or
+    seed (...: an older nlipscalib rendered it)" and advised --overwrite, which then deleted the capture."""
+    import numpy as np
+
+    from nlipscalib.core import Camera, Led, SensorResponse
+    from nlipscalib.core.capture import write_press
+
+    monkeypatch.setattr(sim_press, "render_press", lambda *args, **kwargs: pytest.fail("rendered over a capture"))
+    n, shape = 3, (6, 8, 3)
+    out = write_press(
+        tmp_path / "session" / "press_0001",
+        Camera.from_fov(8, 6, 90.0),
+        [Led((np.cos(a) * 5, np.sin(a) * 5, 0.0)) for a in (0.0, 2.0, 4.0)],
+        SensorResponse(bit_depth=16, black_level=256.0, white_level=65256.0),
+        np.full(shape, 256, np.uint16),
+        np.full((n, *shape), 9000, np.uint16),
+        np.full(shape, 9000, np.uint16),
+        provenance={"source": "device"},
+    )
+    assert main([*TINY, "--out", str(out), *overwrite]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips render: error: {out}: holds a press captured on a sensor"), err
+    assert "even with --overwrite" in err[0] and (out / "led_01.png").exists()

@@ -55,6 +55,28 @@ def test_an_emulated_session_resumed_with_another_tone_curve_is_one_line_exit_2(
     assert sorted(p.name for p in out.iterdir()) == ["reference", "session.json"]
 
 
+def test_an_emulated_capture_into_a_folder_of_twin_renders_is_refused_before_it_renders(tmp_path, capsys, monkeypatch):
+    """`nlips capture --emulate nlipstac --out RENDERS` (a folder of `nlips render` presses) kept the renders as
+    captured presses; refused now, and before the emulator renders its script (the refusals of run_session came
+    after 20 s of renders at 160x120)."""
+    from nlipscalib import emulator
+    from nlipscalib.core.press_meta import SOURCE_TWIN
+
+    args = ["capture", "--emulate", "nlipstac", "--width", "64", "--height", "48", "--spp", "1", "--yes"]
+    out = tmp_path / "s"
+    assert main([*args, "--out", str(out), "--presses", "0"]) == 0
+    (out / "session.json").unlink()  # a folder of renders has none
+    meta = json.loads((out / "reference" / "meta.json").read_text(encoding="utf-8"))
+    meta["provenance"]["source"] = SOURCE_TWIN
+    (out / "reference" / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    capsys.readouterr()
+    monkeypatch.setattr(emulator.EmulatedSensor, "prerender", lambda *a, **k: pytest.fail("rendered, then refused"))
+    assert main([*args, "--out", str(out), "--presses", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{out / 'reference'}: a press rendered by the twin" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["reference"]
+
+
 def test_device_path_without_port_is_one_clear_error(tmp_path, capsys):
     assert main(["capture", "--out", str(tmp_path / "s")]) == 2
     assert "--port" in capsys.readouterr().err

@@ -80,3 +80,77 @@ def test_a_session_resumed_in_a_new_process_captures_each_press_as_an_uninterrup
     other, cam = _operator(seed=6)
     other.press(2, 3)
     assert not np.array_equal(cam.capture(), uninterrupted)  # the seed still decides the noise
+
+
+class SurfaceRenders(StubRenders):
+    """As StubRenders, but the undeformed gel dim (below the noise model's Poisson threshold) and a press bright:
+    what a frame shows then decides how many draws its noise takes, as with real renders."""
+
+    def images(self, surface):
+        return self.stack * (0.05 if surface is None else 1.0)
+
+
+def test_the_first_press_after_a_resume_is_captured_as_in_an_uninterrupted_session():
+    """`nlips capture --emulate` stopped by Ctrl-C after press 2 and run again: press 3 came out with other noise
+    than in one uninterrupted run (press 6 the same): the new process's camera delivered press 3 itself in the
+    frames flushed after the prompt, the old one the frame before, and the noise stream's Poisson draws hang on
+    what a frame shows. Each frame's noise now comes from the seed, the press and the frame's place in it."""
+    from nlipscalib.emulator import ScriptedOperator, default_script
+
+    def operator():
+        scene = SceneConfig().replace(camera={"width": 10, "height": 8}, noise={"enabled": True})
+        board = FakeController(12)
+        cam = EmulatedCamera(SurfaceRenders(scene, 12), lambda: board.latched, seed=5)
+        board.set_all(np.tile([[255, 255, 255]], (12, 1)))
+        return ScriptedOperator(cam, default_script(3), echo=lambda line: None), cam
+
+    whole, cam = operator()
+    whole.reference()
+    cam.capture()
+    whole.press(1, 3)
+    uninterrupted = [cam.capture(), cam.capture()]
+    resumed, cam = operator()  # the new process: the reference is kept on disk
+    resumed.press(1, 3)
+    assert np.array_equal(cam.capture(), uninterrupted[0])
+    assert np.array_equal(cam.capture(), uninterrupted[1])
+
+
+def test_emulated_frames_pass_through_the_scenes_lens_and_camera_effects_as_the_twins_captures(monkeypatch):
+    """The emulated camera left out the scene's camera effects: its frames had no defocus, vignetting or response
+    curve where the twin's (`nlips render` of the same press) have them. With noise off, an emulated frame is now
+    the twin's capture, bit for bit, but at the stated black level (the scene's black-level error left out: under a
+    tone curve it made `nlips calibrate-camera-response --emulate` refuse the camera as one adding a black level)."""
+    import nlipscalib.emulator as emulator
+    import nlipscalib.sim.press as press
+    import nlipscalib.sim.render.surface as surface
+    from nlipscalib.emulator import TwinRenders
+    from nlipscalib.sim.press import camera_capture
+
+    scene = SceneConfig().replace(
+        camera={"width": 16, "height": 12},
+        noise={"enabled": False},
+        camera_effects={
+            "defocus_px": 1.5,
+            "vignetting": "polynomial",
+            "black_level_error": 3.0,
+            "response_gamma": 1.03,
+        },
+    )
+    h, w = scene.camera_model().shape
+    rng = np.random.default_rng(0)
+    per_led = rng.uniform(0.0, 0.01, (12, h, w, 3)).astype(np.float32)
+
+    class Rendered:
+        images = per_led
+
+    monkeypatch.setattr(surface, "render_surface", lambda *args, **kwargs: Rendered)
+    for module in (emulator, press):  # the exposure the twin picks on its own render of the dome, fixed here
+        monkeypatch.setattr(module, "scene_exposure", lambda scene, tricolor=False: 40.0)
+    board = FakeController(12)
+    cam = EmulatedCamera(TwinRenders(scene), lambda: board.latched)
+    stated = scene.replace(camera_effects={"black_level_error": 0.0})
+    dark, leds, _, _, _ = camera_capture(stated, per_led, seed=0)
+    assert not np.array_equal(camera_capture(scene, per_led, seed=0)[0], dark)  # the error shows in a dark frame
+    assert np.array_equal(cam.capture(), dark)
+    board.set_all(np.tile([[255, 255, 255]], (12, 1)) * (np.arange(12) == 4)[:, None])
+    assert np.array_equal(cam.capture(), leds[4])

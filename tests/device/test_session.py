@@ -523,3 +523,21 @@ def test_an_emulated_session_resumed_by_other_twin_code_says_its_earlier_presses
         run_session(device, tmp_path / "device", SessionConfig(presses=1), _quiet()[0])
         run_session(device, tmp_path / "device", SessionConfig(presses=2), _quiet()[0])
     assert "other twin code" not in caplog.text
+
+
+def test_a_capture_into_a_folder_of_the_twins_renders_is_refused_naming_the_render(tmp_path):
+    """`nlips capture --emulate nlipstac --out RENDERS` into a folder of `nlips render` presses of the same sensor
+    kept every render as "already captured", wrote session.json around them and exited 0."""
+    import json
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    (tmp_path / "s" / "session.json").unlink()  # a folder of renders has none
+    meta_path = tmp_path / "s" / "press_0001" / "meta.json"
+    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta_path.write_text(json.dumps(meta | {"provenance": meta["provenance"] | {"source": "sim"}}), encoding="utf-8")
+    with pytest.raises(CaptureError) as err:
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert str(err.value).startswith(f"{tmp_path / 's' / 'press_0001'}: a press rendered by the twin")
+    assert "new --out folder" in str(err.value)
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["press_0001", "reference"]

@@ -757,3 +757,16 @@ def test_presses_other_twin_code_rendered_are_warned_of_once_a_command(tmp_path,
         assert main(["--no-progress", "dataset", str(spec_file), "--out", str(out), "--limit", "2"]) == 0
     warned = [r.getMessage() for r in caplog.records if "rendered by other twin code" in r.getMessage()]
     assert len(warned) == 1 and "reference, press_0001" in warned[0], warned
+
+
+@pytest.mark.parametrize("overwrite", [False, True], ids=["plain", "overwrite"])
+def test_a_press_captured_on_a_sensor_is_never_rendered_over(tmp_path, overwrite):
+    """`nlips dataset SPEC --out SESSION` onto `nlips capture`'s session: its presses were "rendered from a different
+    scene or spec (...: an older nlipscalib rendered it)", and --overwrite rendered over the captured presses."""
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    jobs = expand_jobs(spec)[:2]
+    out = tmp_path / "session"
+    (out / jobs[1].name).mkdir(parents=True)
+    (out / jobs[1].name / "meta.json").write_text(json.dumps({"provenance": {"source": "device"}}), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"press_0001: a press captured on a sensor .*even with --overwrite"):
+        ds.check_existing(scene, jobs, out, overwrite=overwrite)
