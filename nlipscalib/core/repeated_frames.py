@@ -567,15 +567,21 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
     bands = []
     for index in range(1, len(blocks)):
         current, neighbour = blocks[index], blocks[index - 1]
-        # the image after (after the last, the first: the LEDs of a ring in capture order) brackets the image's own
-        # light with the one before; with two images there is none, and every line counts
+        # the images after and before the pair (after the last, the first; before the first, the last: the LEDs
+        # of a ring in capture order) tell where the ring's light changes from LED to LED around the previous one;
+        # with two images there are none, and every line counts
         after = blocks[(index + 1) % len(blocks)] if len(blocks) > 2 else None
+        before = blocks[index - 2] if len(blocks) > 2 else None
         lit = inside & (np.maximum(current, neighbour) > EXPOSURE_LIGHT_FRACTION)
         # the columns are the transposed blocks' rows: one test, one threshold for both readout directions
         found = [
             band
             for axis, turn in (("rows", np.asarray), ("columns", np.transpose))
-            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis, _turned(turn, after)))
+            if (
+                band := _lagged_lines(
+                    turn(current), turn(neighbour), turn(lit), index, axis, _turned(turn, after), _turned(turn, before)
+                )
+            )
         ]
         if len(found) > 1:
             # a band of columns can leave some rows mostly inside it, their medians lagged too (the twin's sphere
@@ -610,6 +616,7 @@ def _lagged_lines(
     index: int,
     axis: str,
     after: np.ndarray | None = None,
+    before: np.ndarray | None = None,
 ) -> LaggedBand | None:
     """:func:`lagged_bands`' test of one LED image's rows of blocks (``axis`` "columns": of the transposed blocks).
 
@@ -618,13 +625,17 @@ def _lagged_lines(
     current, neighbour : (h, w) float32 -- the image's and the previous image's block means (rows: the lines
         tested).
     lit : (h, w) bool -- the blocks on the gel that either image lights.
-    after : (h, w) float32 or None -- the next image's block means: a line counts only where it and ``neighbour``
-        differ by :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (elsewhere the image's own
-        light cannot be told from the previous one's); None: every line counts.
+    after, before : (h, w) float32 or None -- the block means of the image after ``current`` and of the image
+        before ``neighbour``: a line counts only where each differs from ``neighbour`` by
+        :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (elsewhere the image's own light cannot be
+        told from the previous one's); None: every line counts.
     """
     counted = lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS
-    if after is not None:
-        contrast = np.abs(after - neighbour) / np.where(lit, np.maximum(np.maximum(after, neighbour), 1e-12), 1)
+    # both sides: where the previous LED is the ring's brightest or dimmest at a line (a wide view's far base
+    # rim; gel both LEDs light only by the indirect light), the image's own light lies as near it as the image
+    # before it does, not between it and the image after (s33-rimband)
+    for other in (image for image in (after, before) if image is not None):
+        contrast = np.abs(other - neighbour) / np.where(lit, np.maximum(np.maximum(other, neighbour), 1e-12), 1)
         counted[counted] = _row_medians(contrast[counted], lit[counted]) >= LAGGED_BAND_CONTRAST
     rows = np.flatnonzero(counted)
     if len(rows) <= LAGGED_BAND_ROWS:

@@ -561,7 +561,17 @@ tells nothing. Why: a camera that sees the whole dome down to its base (a wide v
 s32-rimview) sees at the frame's last gel columns only the far base rim, which neighbouring LEDs of the ring light
 alike (0.2-0.6 % apart, the next LED 1.3-3.6 %, 160x120 twin press): 3 such columns were called lagged, "led_08.png's
 columns 135-149 (right) show led_07.png's light", and left out of the solve. A true lag band holds the light of an
-LED two ring places from the next (nlipstac: 0.2 apart, :data:`REPEATED_FRAME_DIFFERENCE`'s note)."""
+LED two ring places from the next (nlipstac: 0.2 apart, :data:`REPEATED_FRAME_DIFFERENCE`'s note). Since s33-rimband
+the image before the previous one must differ from it there by as much too: where the previous LED is the ring's
+brightest (dimmest) at a line, the image's own light is as near it as the image before it is, not between it and
+the next (a wide view's far base rim: the LED across the dome lights it least, its neighbours either side alike;
+gel two LEDs light only by the indirect light, beyond both terminators). The next image alone was not enough: the
+zone where neighbouring LEDs light alike spans more lines of blocks the finer the image, while
+:data:`LAGGED_BAND_ROWS` counts lines, so 3-9 such lines were still called a band, "led_08.png's columns 290-309
+(right) show led_07.png's light" (undeformed nlipstac_wide, 320x240; with the next image alone 13 of 24 clean wide
+captures at 160x120, 320x240 and 640x480, direct light and one bounce, at the frame's sides and bottom: led_02.png's
+columns 20-64, led_08.png's 585-619 at 640x480); with both sides none, and a band read before the switch over 3/8 of
+the frame still found at each size (benchmarks/RESULTS.md, s33-rimband)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image

@@ -155,3 +155,40 @@ def test_columns_read_before_the_switch_are_named_as_columns_though_some_rows_lo
     rows = images.copy()
     rows[3, :72] = light[2, :72, :, None] * (1 + rng.normal(0, 0.05, (72, w, 3)))
     assert [(b.index, b.axis, b.where) for b in frame_checks(rows, gel)[1]] == [(3, "rows", "top")]
+
+
+def _ring_with_a_far_rim(rng, width):
+    """(12, 60, width, 3) linear images of a 12-LED ring (30 deg apart) whose light, column by column, goes as
+    ``1 + r cos(led angle - a)``: over most columns r = 0.5 with ``a`` turning by 90 deg across them (neighbouring LEDs
+    up to 25 % apart), over the last twelfth r = 0.06 with ``a`` at LED 7 (index 6): a wide view's far base rim, where
+    the LED across the dome lights least and the LEDs either side of it alike (LEDs 7 and 8 0.8 % apart, LEDs 7 and
+    9 3 %); 0.2 % noise. The rim spans width / 60 lines of blocks: more, the finer the image."""
+    h, count = 60, 12
+    angles = 2 * np.pi * np.arange(count) / count
+    x = np.arange(width)
+    rim = x >= width - width // 12
+    r = np.where(rim, 0.06, 0.5)
+    a = np.where(rim, angles[6], 0.5 * np.pi * x / width)
+    light = 0.3 * (1 + r * np.cos(angles[:, None] - a))  # (12, width)
+    images = np.broadcast_to(light[:, None, :, None], (count, h, width, 3))
+    return images * (1 + rng.normal(0, 0.002, (count, h, width, 3)))
+
+
+def test_lines_the_ring_lights_alike_around_the_previous_led_are_no_lag_band_at_any_size():
+    """s33-rimband: the next image alone (its contrast with the previous) let 3 or more such lines through once the
+    rim spanned more lines of blocks: "led_08.png's columns 290-309 (right) show led_07.png's light" at 320x240."""
+    rng = np.random.default_rng(4)
+    for width in (240, 480, 960):  # the rim 4, 8 and 16 lines of blocks wide
+        images = _ring_with_a_far_rim(rng, width)
+        gel = np.ones(images.shape[1:3], bool)
+        assert frame_checks(images, gel)[:2] == ([], []), width
+        # LED 8's frame read across the switch, its right 3/8 (the rim and past it) still LED 7's light, other
+        # noise: found from its first column, named by its columns at the right (the lines where no neighbour tells
+        # the lights apart are not counted, so the band named can end before the frame's edge: the solve leaves it
+        # out to the edge)
+        band = 3 * width // 8
+        lagged = images.copy()
+        lagged[7][:, -band:] = images[6][:, -band:] * (1 + rng.normal(0, 0.002, (60, band, 3)))
+        bands = frame_checks(lagged, gel)[1]
+        assert [(found.index, found.axis, found.top) for found in bands] == [(7, "columns", False)], width
+        assert bands[0].rows[0] == width - band

@@ -73,3 +73,33 @@ def test_the_dim_base_is_no_dark_band_but_a_band_read_unlit_is(direct_reference)
     unlit[:, :, 60:80] = 0
     band = frame_checks(unlit, gel, expected)[2]
     assert band is not None and band.axis == "columns" and 55 <= band.rows[0] <= 60 and 80 <= band.rows[1] <= 85
+
+
+@pytest.fixture(scope="module")
+def wide_reference_320(tmp_path_factory):
+    """The undeformed nlipstac_wide at 320x240, one bounce, 16 spp (`nlips render --scene nlipstac_wide
+    --undeformed --width 320 --height 240 --bounces 1 --spp 16 --seed 2`)."""
+    scene = load_scene("nlipstac_wide").replace(
+        camera={"width": 320, "height": 240}, render={"bounces": 1, "spp": 16, "threads": 1, "seed": 2}
+    )
+    return load_press(render_press(scene, None, tmp_path_factory.mktemp("wide") / "reference", seed=2))
+
+
+def test_at_320x240_the_far_rim_on_either_side_is_no_lag_band_and_a_true_lag_is_still_found(wide_reference_320):
+    """s33-rimband: with only the next image's contrast, "led_02.png's columns 25-44 (left) show led_01.png's
+    light" and "led_08.png's columns 270-294 (right) show led_07.png's light" (the far base rim, which the LEDs
+    either side of the one across the dome light alike, spans twice the lines of blocks it does at 160x120)."""
+    press = wide_reference_320
+    images = np.array(press.linear_led_images)
+    gel = np.isfinite(press.reference.depth)
+    assert frame_checks(images, gel)[:2] == ([], [])
+    # LEDs 2 and 8 read across the switch over 3/8 of the frame at the side of their rim, LED 6 over its top rows
+    for index, lines, axis, top in (
+        (1, np.s_[:, :120], "columns", True),
+        (7, np.s_[:, 200:], "columns", False),
+        (5, np.s_[:90], "rows", True),
+    ):
+        lagged = images.copy()
+        lagged[index][lines] = images[index - 1][lines]
+        bands = frame_checks(lagged, gel)[1]
+        assert [(band.index, band.axis, band.top) for band in bands] == [(index, axis, top)]
