@@ -185,6 +185,7 @@ class Model:
         self.disk_ratio = ratio
         # where the centre is unlit and some of the disk is not (its edge's samples), the disk's light as it is
         self.disk_offset = None if bool(lit.all()) else xp.where(lit, 0 * exact, exact)
+
     def _point_shading(
         self, leds: _Emitters, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
