@@ -104,18 +104,18 @@ def _errors(result, depth, normals):
 
 
 def test_a_solve_of_disk_leds_recovers_exact_disk_images(disk_images, monkeypatch):
-    """A known answer: the solve with disk LEDs (the ratio fixed at each level's start, and again where the finest
-    converged) recovers the surface of exact disk images, within 0.004 mm and 0.05 deg (the model with the 7 points at
-    every evaluation: 0.0021 mm, 0.029 deg; this one 0.0021, 0.028); the point LEDs miss it by 0.15 mm. A single
-    level solved from the undeformed prior (its depth 1.5 mm off in the dent), whose ratio fixed again moves its
-    energy, iterates on from there: closer than without (0.028 against 0.032 deg)."""
+    """A known answer: the solve with disk LEDs (the ratio fixed at each level's start) recovers the surface of exact
+    disk images, within 0.004 mm and 0.05 deg (the model with the 7 points at every evaluation: 0.0021 mm, 0.029 deg;
+    this one 0.0021, 0.028); the point LEDs miss it by 0.15 mm. A single level solved from the undeformed prior (its
+    depth 1.5 mm off in the dent), whose ratio fixed again where it converged moves its energy, iterates on from
+    there: closer than without (0.028 against 0.032 deg)."""
     from nlipscalib.solver import SolverOptions, gauss_newton, solve
 
     images, cam, leds, prior, depth, normals = disk_images
     disks = solve(images, cam, leds, prior_depth=prior, led_radius=RADIUS)
     rmse, aae = _errors(disks, depth, normals)
     assert rmse < 0.004 and aae < 0.05, (rmse, aae)
-    assert disks.report["levels"][-1]["disk_ratio_fixes"] == 1  # the finest level's check
+    assert disks.report["levels"][-1]["disk_ratio_fixes"] == 0  # from the coarser level's depth: not checked
     assert _errors(solve(images, cam, leds, prior_depth=prior), depth, normals)[0] > 0.1
     single = SolverOptions(estimator="ls", pyramid_levels=1)
     once = solve(images, cam, leds, prior_depth=prior, led_radius=RADIUS, options=single)
