@@ -5,7 +5,8 @@ checkout of another revision, e.g. ``git worktree add --detach DIR REV``), that 
 process (``python -m nlipscalib solve PRESS --leds FILE --led-model M --out OUT --overwrite --no-figures -q``) with
 its own bytecode folder and disk cache (kept over the rounds, as a user's are), the tree on ``PYTHONPATH``. The first
 round is a warm-up and not counted. Per arm: the medians [ranges] of the process's wall and user+sys CPU, the solver's
-own timer (``report.json`` ``seconds``) and, per round, the ratio of each arm to the same tree's points.
+own timer (``report.json`` ``seconds``), per round the ratio of each arm to the same tree's points, and the contact's
+AAE / depth RMSE of its last solve.
 
 Usage: python benchmarks/bench_disk_leds.py PRESS LEDS.json [--before DIR] [--rounds 5] [--near-idle] [--work DIR]
 
@@ -55,6 +56,18 @@ def _run(
     return wall, cpu, float(seconds)
 
 
+def _scores(press: str, out: Path) -> str:
+    """The contact's AAE (deg) / depth RMSE (mm) of the solve in ``out`` (``nlips eval``'s figures; the press needs
+    its gt.npz)."""
+    from nlipscalib.core import load_press
+    from nlipscalib.core.metrics import evaluate
+    from nlipscalib.core.reconstruction import load_reconstruction
+
+    truth = load_press(press).ground_truth
+    contact = evaluate(load_reconstruction(out, truth.depth.shape), truth)["contact"]
+    return f"{contact['aae_deg']:.3f} / {contact['depth_rmse_mm']:.4f}"
+
+
 def _summary(values: np.ndarray) -> str:
     return f"{np.median(values):.3f} [{values.min():.3f}-{values.max():.3f}]"
 
@@ -91,7 +104,8 @@ def main() -> None:
         print(
             f"{tree:6s} {model:6s} n={len(rows)} wall {_summary(rows[:, 0])} s, user+sys {_summary(rows[:, 1])} s, "
             f"solver {_summary(rows[:, 2])} s; per round / points: wall {_summary(ratio[:, 0])}, "
-            f"user+sys {_summary(ratio[:, 1])}, solver {_summary(ratio[:, 2])}"
+            f"user+sys {_summary(ratio[:, 1])}, solver {_summary(ratio[:, 2])}; contact AAE / RMSE "
+            f"{_scores(args.press, work / f'out-{tree}-{model}')}"
         )
 
 
