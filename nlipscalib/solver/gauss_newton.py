@@ -56,7 +56,7 @@ def solve_level(
         stop = level.iterate(pcg, coarse)
         if bar is not None:
             bar.update(1)
-        if stop and not coarse and level.disks_moved():  # the finest level goes on from the disks' new ratio
+        if stop and not coarse and level.disks_moved():  # a level from the prior goes on from the disks' new ratio
             continue
         if stop:
             level.info["stop"] = stop
@@ -118,7 +118,7 @@ class _Level:
         }
         if model.disks is not None:  # fixed again at the level's converged depth (:meth:`disks_moved`)
             self.info["disk_ratio_fixes"] = 0
-        self.from_prior = bool(np.array_equal(self.t0, t))
+        self.from_prior = model.disks is not None and bool(np.array_equal(self.t0, t))
         """The level starts from the depth prior, not from a depth solved on a coarser level or an earlier pass."""
         self.nrm = self.normals(t)
         self.g_prev = self.eta = None

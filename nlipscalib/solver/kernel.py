@@ -171,7 +171,7 @@ class Model:
         disk's shading as :attr:`disk_offset`."""
         xp = self.be.xp
         # point by point of the rule, L rows at a time: the temporaries of all 7 L rows at once left the CPU's
-        # cache (8x the time of the points' own shading)
+        # cache (3.5x this loop's CPU at 320x240, s33-diskfast)
         centre = exact = None
         for weight, points in zip(DISK_RULE_WEIGHTS, self.disks):
             F = self._point_shading(points, t, tu, tv)
