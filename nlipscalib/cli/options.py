@@ -42,7 +42,7 @@ def add_led_model(parser: argparse.ArgumentParser) -> None:
         choices=("points", "disks"),
         default="points",
         help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
-        "disks: 7x the model's cost; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
+        "disks: ~1.1x the solve's CPU; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
         "where points misplace the whole gel's depth by up to 0.1 mm)",
     )
 

@@ -77,6 +77,20 @@ class Backend:
         return float(a.sum(dtype=self.xp.float64))
 
 
+class _Emitters:
+    """Point LEDs on a backend, as :meth:`Model._point_shading` reads them: positions and axes as three (K, 1)
+    columns each (mm, camera frame), mu (K, 1)."""
+
+    __slots__ = ("pos", "dir", "mu", "mu_ones")
+
+    def __init__(self, be: Backend, positions: np.ndarray, directions: np.ndarray, mu: np.ndarray):
+        self.pos = [be.asarray(positions[:, k : k + 1]) for k in range(3)]
+        self.dir = [be.asarray(directions[:, k : k + 1]) for k in range(3)]
+        self.mu = be.asarray(mu[:, None])
+        # a factor of 1 multiplies nothing (see Model's flags)
+        self.mu_ones = bool(np.all(np.asarray(mu) == 1))
+
+
 class Model:
     """The image model on one pyramid level, with data held on the backend."""
 
@@ -98,53 +112,84 @@ class Model:
         images, usable : (L, 3, N) (usable as 0/1).
 
         ``positions`` (L, 7, 3) instead: LEDs that emit from disks, given by their quadrature points
-        (:func:`nlipscalib.core.leds.disk_points`); each LED's shading is then the weighted mean of its points'
-        (:data:`nlipscalib.core.leds.DISK_RULE_WEIGHTS`), the model of :func:`nlipscalib.core.leds.disk_shading`."""
+        (:func:`nlipscalib.core.leds.disk_points`, the first of each its centre); their shading is the model of
+        :func:`nlipscalib.core.leds.disk_shading` through :attr:`disk_ratio` (see :meth:`shading`)."""
         self.be = be
-        self.disk_weights = None
+        self.disks = None
+        """The disk LEDs' quadrature points as point emitters, one :class:`_Emitters` of every disk's k-th point
+        (of its disk's axis and mu) for each point k of the rule, or None: point LEDs."""
+        self.disk_ratio = None
+        """(L, N) -- of disk LEDs: their shading over their centres' as point LEDs, at the surface last given to
+        :meth:`fix_disk_ratio` (None: not yet); 1 where the centre is unlit."""
+        self.disk_offset = None
+        """(L, N) -- of disk LEDs fixed where some samples' centres are unlit: the disks' shading there, 0 elsewhere
+        (None: every centre lit)."""
         if positions.ndim == 3:  # each point of a disk shades as a point LED of the disk's axis and profile
-            n_leds, n_points = positions.shape[:2]
-            positions = positions.reshape(-1, 3)
-            directions = np.repeat(directions, n_points, axis=0)
-            mu = np.repeat(mu, n_points)
-            weights = np.tile(DISK_RULE_WEIGHTS, n_leds)[:, None].astype(np.asarray(images).dtype)
-            self.disk_weights = be.asarray(weights)
-            self.n_leds = n_leds
+            self.disks = [_Emitters(be, positions[:, k], directions, mu) for k in range(positions.shape[1])]
+            positions = positions[:, 0]  # the rule's first point: the disk's centre
+        self.leds = _Emitters(be, positions, directions, mu)
+        """The point LEDs the shading evaluates (of disk LEDs their centres)."""
         self.q = [be.asarray(q[:, k]) for k in range(3)]
         self.A = [be.asarray(A[:, k]) for k in range(3)]
         self.B = [be.asarray(B[:, k]) for k in range(3)]
         self.C = [be.asarray(C[:, k]) for k in range(3)]
-        self.pos = [be.asarray(positions[:, k : k + 1]) for k in range(3)]
-        self.dir = [be.asarray(directions[:, k : k + 1]) for k in range(3)]
-        self.mu = be.asarray(mu[:, None])
         self.psi = be.asarray(psi[:, :, None])
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
         # Factors of 1 multiply nothing: the products they would take a pass over (L, 3, N) for are skipped, with
         # the same bits (x * 1 == x, x ** 1 == x). The default twin's LEDs and most pixel chunks are so.
-        self.mu_ones = bool(np.all(np.asarray(mu) == 1))
         self.psi_ones = bool(np.all(np.asarray(psi) == 1))
         self.all_usable = bool(np.all(np.asarray(usable) == 1))
 
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
-        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit); of disk LEDs the
-        weighted means of their points' (each point lit or not on its own)."""
-        out = self._point_shading(t, tu, tv, derivatives)
-        if self.disk_weights is None:
+        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit).
+
+        Of disk LEDs: their centres' point shading times :attr:`disk_ratio`, fixed at the first surface shaded
+        unless :meth:`fix_disk_ratio` fixed it before: the disks' exact shading there, and near it as the
+        ratio changes slowly with the surface; the derivatives are the points' times the ratio (its own change
+        left out). Why not the disks' shading at every call: 7 point LEDs a disk made a whole solve 2x the
+        points' (benchmarks/RESULTS.md, s32-rimdepth); the ratio costs one 7-point shading, without derivatives,
+        per fix (s33-diskfast)."""
+        out = self._point_shading(self.leds, t, tu, tv, derivatives)
+        if self.disks is None:
             return out
+        if self.disk_ratio is None:
+            self.fix_disk_ratio(t, tu, tv)
+        F = out[0] if derivatives else out
+        for a in out if derivatives else (out,):
+            a *= self.disk_ratio
+        if self.disk_offset is not None:
+            F += self.disk_offset
+        return out
 
-        def mean(a: Array) -> Array:
-            a = a * self.disk_weights
-            return a.reshape(self.n_leds, -1, a.shape[-1]).sum(1)
-
-        return mean(out) if not derivatives else tuple(mean(a) for a in out)
+    def fix_disk_ratio(self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray) -> None:
+        """Fix :attr:`disk_ratio` at the surface (t, t_u, t_v): each disk's shading (the weighted mean of its
+        quadrature points', each lit or not on its own: :func:`nlipscalib.core.leds.disk_shading`'s model) over its
+        centre's, and where the centre is unlit (a few % of the samples, at the edge of an LED's light) 1 and the
+        disk's shading as :attr:`disk_offset`."""
+        xp = self.be.xp
+        # point by point of the rule, L rows at a time: the temporaries of all 7 L rows at once left the CPU's
+        # cache (3.5x this loop's CPU at 320x240, s33-diskfast)
+        centre = exact = None
+        for weight, points in zip(DISK_RULE_WEIGHTS, self.disks):
+            F = self._point_shading(points, t, tu, tv)
+            if centre is None:
+                centre, exact = F, F * float(weight)
+            else:
+                F *= float(weight)
+                exact += F
+        lit = centre > 0
+        ratio = xp.where(lit, exact / xp.where(lit, centre, 1), 1)
+        self.disk_ratio = ratio
+        # where the centre is unlit and some of the disk is not (its edge's samples), the disk's light as it is
+        self.disk_offset = None if bool(lit.all()) else xp.where(lit, 0 * exact, exact)
 
     def _point_shading(
-        self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
+        self, leds: _Emitters, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
-        """:meth:`shading` of point LEDs (one per row of ``self.pos``).
+        """:meth:`shading` of point LEDs ``leds`` (one per row of ``leds.pos``).
 
         Written with in-place operations in the order of the formulas' plain expressions (the same bits): an
         (L, N) temporary is a pass over memory, and the fewer of them, the more of a chunk stays in cache."""
@@ -155,17 +200,17 @@ class Model:
         nv = [-(tu * a + tv * b + c) for a, b, c in zip(self.A, self.B, self.C)]
         nn2 = nv[0] ** 2 + nv[1] ** 2 + nv[2] ** 2
         nn = xp.sqrt(nn2)
-        v = [p - xk for p, xk in zip(self.pos, x)]  # x_s - x, (L, N)
+        v = [p - xk for p, xk in zip(leds.pos, x)]  # x_s - x, (L, N)
         r2 = _dot3(xp, v, v)
         r = xp.sqrt(r2)
         vn = _dot3(xp, v, nv)
-        nsv = _dot3(xp, self.dir, v)
+        nsv = _dot3(xp, leds.dir, v)
         cos_led = -nsv
         cos_led /= r
         lit = vn > 0
         lit &= cos_led > 0
         # where lit, cos_led and vn are positive: no clamp needed on what is kept
-        F = cos_led * vn if self.mu_ones else be.relu(cos_led) ** self.mu * vn
+        F = cos_led * vn if leds.mu_ones else be.relu(cos_led) ** leds.mu * vn
         den = nn * r2
         den *= r
         F /= den
@@ -179,15 +224,15 @@ class Model:
         safe_cos = cos_led if all_lit else xp.where(lit, cos_led, 1)
         del vn, cos_led, lit
         vx = _dot3(xp, v, x)
-        dlog_t = _dot3(xp, self.dir, x)  # n_s . x
+        dlog_t = _dot3(xp, leds.dir, x)  # n_s . x
         dlog_t /= r  # d cos_led / dt = n_s . x / r - nsv vx / r^3
         nsv *= vx
         xp.multiply(r2, r, out=den)
         nsv /= den
         dlog_t -= nsv
         del nsv, r, den
-        if not self.mu_ones:
-            dlog_t *= self.mu
+        if not leds.mu_ones:
+            dlog_t *= leds.mu
         dlog_t /= safe_cos  # mu dcos/dt / cos - x.N / vn + 3 vx / r^2
         dlog_t -= _dot3(xp, x, nv) / safe_vn
         vx *= 3
@@ -423,6 +468,8 @@ class ChunkedModel:
         self.be = be
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
+        self.disks = self.parts[0].disks
+        """The first chunk's (None: point LEDs; see :attr:`Model.disks`)."""
 
     def _cut(self, a: object, k: int):
         """Chunk ``k`` of an argument: a :class:`Parts`' own array, a slice of a per-pixel array."""
@@ -483,6 +530,9 @@ class ChunkedModel:
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Parts | tuple[Parts, Parts, Parts, Parts]:
         return self._parts(self._map("shading", t, tu, tv, derivatives))
+
+    def fix_disk_ratio(self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray) -> None:
+        self._map("fix_disk_ratio", t, tu, tv)
 
     def residuals(self, F: Array | Parts, albedo: Array | Parts) -> Parts:
         return self._parts(self._map("residuals", F, albedo))

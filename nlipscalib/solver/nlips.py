@@ -128,7 +128,9 @@ def solve(
         to their axes (:func:`nlipscalib.core.leds.disk_shading`'s model, e.g. ``calibrate-leds``' fitted
         ``emitters``); 0: point LEDs. Why: where the gel comes within a few LED sizes of an LED (a view that sees the
         dome down to its base) the point model misses a disk's light by up to 8 %, and the whole gel's depth took a
-        0.09 mm bump from it (benchmarks/RESULTS.md, s32-rimdepth). Costs about 7x the model's shading.
+        0.09 mm bump from it (benchmarks/RESULTS.md, s32-rimdepth). Each level shades the disks' centres as points times
+        their ratio to the disks fixed at its start (:meth:`.kernel.Model.fix_disk_ratio`): ~1.1x a point solve's
+        CPU (s33-diskfast; the 7 points at every evaluation cost 1.3-1.5x).
     """
     opts = options or SolverOptions()
     leds = tuple(leds)

@@ -174,8 +174,8 @@ def test_shortcuts_give_the_general_paths_bits(level):
     usable_g = np.concatenate([every, every[..., :1]], -1)
     usable_g[0, 0, -1] = 0  # an excluded sample (on the extra pixel): the general path's usable products
     general = kernel.Model(be, *with_dark[:4], pos, dirs, *ones, images_g, usable_g)
-    general.mu_ones = general.psi_ones = False  # the general path: powers and products by the 1s
-    assert fast.mu_ones and fast.psi_ones and fast.all_usable and not general.all_usable
+    general.leds.mu_ones = general.psi_ones = False  # the general path: powers and products by the 1s
+    assert fast.leds.mu_ones and fast.psi_ones and fast.all_usable and not general.all_usable
     F, *dF = fast.shading(t, tu, tv, True)
     Fg, *dFg = general.shading(*with_dark[4:], True)
     assert (F > 0).all() and (Fg[:, -1] == 0).any() and (Fg[:, -1] > 0).any()
