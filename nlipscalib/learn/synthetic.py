@@ -250,7 +250,8 @@ def samples_for_dataset(
     ref_folder = dataset.index.get("reference")
     if not ref_folder or not Path(ref_folder).is_dir():
         raise CaptureError(
-            f"{dataset.folder}: synthetic samples need the reference capture (its LEDs), not found at {ref_folder!r}"
+            f"{dataset.folder}: synthetic samples need the reference capture (its LEDs), not found at {ref_folder!r}: "
+            "train without --synthetic-share, or where the capture is"
         )
     optics = read_optics(ref_folder)
     camera = Camera.from_dict(dataset.sensor["camera"])
