@@ -19,9 +19,11 @@ is a pixel of the undeformed dome whose gel point is pushed a little along the c
   the surface around it sees that surface over the view factor (1 - cos tilt) / 2 and reflects its radiance (its
   image value, S_ref) times its own reflectance. Why: the direct model alone makes steep facets too dark. On Q2's
   medium twin, at the true geometry of the test presses' contact pixels, it is within 1-4 % of the real colour up
-  to 35 deg of tilt but 10-12 % too dark at 35-50 deg and 21-37 % at 50-90 deg (cone, screw, coin), where the
-  facets face the gel around them. The calibration presses, which stay below 30 deg, cannot fit ``a`` (a fit on
-  them gives -0.39; the steep unseen facets would want +1.04): it is the gel's reflectance, a property of its coat.
+  to 35 deg of tilt but 10-13 % too dark at 35-50 deg and 28-38 % at 50-90 deg (cone, screw, coin), where the
+  facets face the gel around them; a = 0.8 leaves -9 to -11 % there. The calibration presses, which stay below 30 deg,
+  cannot fit ``a`` (a fit on them gives -0.39; the steep unseen facets would want +1.04): it is the gel's reflectance,
+  a property of its coat. Off by default: its 2-4.5 % overshoot at 20-35 deg, where the real samples are, cost Q2's
+  seen split 0.15 deg (docs/experiments/RESULTS.md, s33-synth).
 - ``M, o``: how the tri-colour channels mix the groups' single-LED images (:func:`fit_mixing`, least squares over
   the pixels of presses that have both). On the twin M is 0.386 I to within 0.003 off the diagonal.
 
