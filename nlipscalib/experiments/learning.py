@@ -115,7 +115,8 @@ def model_files(out: Path, names: list[str], stamps: dict, cfg: TrainConfig) -> 
     """
     from ..learn.checkpoint import jsonable_config
 
-    # jsonable_config: the options as asdict has them, less synthetic_share at 0 (the keys of earlier runs' models)
+    # jsonable_config: the options as asdict has them, less the synthetic ones while synthetic_share is 0 (so the keys
+    # of the models that earlier runs trained stay theirs)
     options = jsonable_config(cfg)
     key = digest({"train": options, "presses": [[n, stamps[n]] for n in names]}, 16)
     folder = Path(out) / MODELS_DIR
