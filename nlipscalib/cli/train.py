@@ -27,6 +27,8 @@ OPTION_OF = {
     "seed": "--seed",
     "max_seconds": "--max-minutes",
     "threads": "--threads",
+    "synthetic_share": "--synthetic-share",
+    "synthetic_reflectance": "--gel-reflectance",
 }
 """The option of `nlips train` that sets each TrainConfig field (its validation messages name the field)."""
 
@@ -87,6 +89,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the other). A GPU run's weights differ slightly from a CPU run's (other rounding and dropout draws); the same "
         "training run again reuses the finished model whichever device made it, and says so",
     )
+    p.add_argument(
+        "--synthetic-share",
+        type=float,
+        default=0.0,
+        help="add model-made samples of steep relief (normals tilted 30-75 deg, from the LED model, the undeformed "
+        "surface and the reference frame; needs the dataset's reference capture and press folders) to the training "
+        "samples, this many per real one (default 0: none; measured on the twin's Q2 in docs/experiments/RESULTS.md)",
+    )
+    p.add_argument(
+        "--gel-reflectance",
+        type=float,
+        default=0.0,
+        help="the gel coat's diffuse reflectance, for the synthetic samples' indirect light (default 0: direct light "
+        "only; a white matte coat: about 0.8)",
+    )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (none either when not on a terminal)")
     p.set_defaults(func=run)
@@ -131,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
             lr=args.lr,
             seed=args.seed,
             max_seconds=args.max_minutes * 60,
+            synthetic_share=args.synthetic_share,
+            synthetic_reflectance=args.gel_reflectance,
         )
     device = check_device(args.device)  # before the dataset loads: a machine without the GPU is told at once
     data = CalibrationDataset(args.dataset)

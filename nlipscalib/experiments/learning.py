@@ -9,7 +9,6 @@ resumes from its checkpoint (learn.train).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import time
@@ -114,7 +113,12 @@ def model_files(out: Path, names: list[str], stamps: dict, cfg: TrainConfig) -> 
     The key hashes the training options and each press's sample identity (``stamps``), so a changed press
     or option never reuses a stale model.
     """
-    key = digest({"train": dataclasses.asdict(cfg), "presses": [[n, stamps[n]] for n in names]}, 16)
+    from ..learn.checkpoint import jsonable_config
+
+    # jsonable_config: the options as asdict has them, less the synthetic ones while synthetic_share is 0 (so the keys
+    # of the models that earlier runs trained stay theirs)
+    options = jsonable_config(cfg)
+    key = digest({"train": options, "presses": [[n, stamps[n]] for n in names]}, 16)
     folder = Path(out) / MODELS_DIR
     return key, folder / f"nlipsnet-{key}.pt", folder / f"nlipsnet-{key}.json"
 

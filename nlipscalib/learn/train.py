@@ -56,6 +56,9 @@ MAX_HIDDEN_WIDTH = 4096
 """Widest hidden layer TrainConfig accepts: 16x the paper's 256. Two such layers already hold 64 MB of weights
 (256 MB with Adam's moments) and a batch of 1024 samples 16 MB of activations per layer; a wider one is a slip
 (``--hidden 100000000``), which ran out of memory in the first batch, a traceback after loading the dataset."""
+MAX_SYNTHETIC_SHARE = 4.0
+"""Largest :attr:`TrainConfig.synthetic_share`: four synthetic samples per real one already let the model's light
+outweigh what the presses show."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,6 +111,15 @@ class TrainConfig:
     checkpoint must match to be resumed (a run resumed on another count goes on with the same training, rounded
     otherwise: each epoch's count is in the history, and the resume says so); the experiments' model key holds it
     (experiments.learning.model_files)."""
+    synthetic_share: float = 0.0
+    """Model-based samples of steep relief added to the training samples, as a share of them (0: none; 0.25 adds one
+    synthetic sample per four real ones): :mod:`.synthetic` makes them from the LED model, the undeformed surface and
+    the reference frame, for normals tilted 30-75 deg, beyond what the calibration indenters reach. Training only
+    (validation stays on the real presses). Off by default: measured on Q2 (docs/experiments/RESULTS.md, s33)."""
+    synthetic_reflectance: float = 0.0
+    """The gel's diffuse reflectance for the synthetic samples' indirect light (:mod:`.synthetic`: a tilted facet
+    lit by the gel around it; 0: direct light only; a white matte coat: about ``synthetic.GEL_REFLECTANCE``, 0.8).
+    Unused when ``synthetic_share`` is 0."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
@@ -129,6 +141,10 @@ class TrainConfig:
             raise ConfigError(f"max_seconds must be >= 0 (0: no limit), got {self.max_seconds!r}")
         if not 0 < self.val_fraction < 1:
             raise ConfigError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+        if not (isinstance(self.synthetic_share, (int, float)) and 0 <= self.synthetic_share <= MAX_SYNTHETIC_SHARE):
+            raise ConfigError(f"synthetic_share must be in [0, {MAX_SYNTHETIC_SHARE:g}], got {self.synthetic_share!r}")
+        if not (isinstance(self.synthetic_reflectance, (int, float)) and 0 <= self.synthetic_reflectance <= 1):
+            raise ConfigError(f"synthetic_reflectance must be in [0, 1], got {self.synthetic_reflectance!r}")
         if self.schedule not in ("plateau", "cosine"):
             raise ConfigError(f"schedule must be 'plateau' or 'cosine', got {self.schedule!r}")
         if self.lr_patience < 0 or not 0 < self.lr_factor < 1:
@@ -330,6 +346,8 @@ class _TrainingData:
     """(M, 3) float32, unit, camera frame -- the validation targets."""
     c_va: np.ndarray
     """(M,) bool -- the validation samples in contact."""
+    synthetic: int = 0
+    """How many of the training samples (the last ones of ``x_tr``) are synthetic (:mod:`.synthetic`)."""
 
     def arrays(self) -> tuple[np.ndarray, ...]:
         """x_tr, y_tr, x_va, y_va, c_va: what the epochs run on and the checkpoint's data key digests."""
@@ -345,11 +363,26 @@ def _training_data(
     reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
     x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
+    synthetic = 0
+    if cfg.synthetic_share > 0 and len(x_tr):
+        from .synthetic import samples_for_dataset
+
+        count = round(cfg.synthetic_share * len(x_tr))
+        syn = samples_for_dataset(dataset, train_names, count, cfg.seed, cfg.synthetic_reflectance)
+        synthetic = len(syn["rgb"])
+        log.info(
+            "%s: %d synthetic samples of steep relief added to %d training samples",
+            dataset.folder,
+            synthetic,
+            len(x_tr),
+        )
+        x_tr = np.concatenate([x_tr, model_inputs(syn["pixel"], syn["rgb"])])
+        y_tr = np.concatenate([y_tr, syn["normal"]])
     if len(x_tr) < 2 or len(x_va) < 1:
         raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
     if not (c_tr.any() or c_va.any()):
         raise ConfigError(no_contact_error(dataset, len(train_names) + len(val_names), len(x_tr) + len(x_va)))
-    return _TrainingData(train_names, val_names, reference, x_tr, y_tr, x_va, y_va, c_va)
+    return _TrainingData(train_names, val_names, reference, x_tr, y_tr, x_va, y_va, c_va, synthetic)
 
 
 def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray, device: torch.device):
@@ -393,6 +426,7 @@ def _save_trained(
         "val_presses": data.val_names,
         "excluded_presses": sorted(exclude),
         "train_samples": int(len(data.x_tr)),
+        "synthetic_samples": data.synthetic,  # of train_samples: model-made steep relief (TrainConfig.synthetic_share)
         "best_epoch": best["epoch"],
         "best_val_aae_deg": best["aae"],
         "history": history,
