@@ -91,9 +91,10 @@ def remove_if_left_empty(stack: contextlib.ExitStack, folders: Iterable[Path]) -
     empty then, deepest first; call it before entering what may make them (the run's holds: core.claims makes the
     folder a claim file lies in).
 
-    Why: a run's holds on its outputs are taken before its inputs are read, and made its --out folder for their
-    claim files; a run refused for a bad input or model (one line, nothing written) left that folder empty
-    behind it. A folder another process has put something into meanwhile (its claims, results) is kept."""
+    Why: a run's holds on its outputs are taken before its inputs are read, and make the folders their claim files
+    lie in (``OUT/PRESS`` for a press's result under --out, a missing parent of --out); a run refused for a bad
+    input or model (one line, nothing written) left them empty behind it. A folder another process has put
+    something into meanwhile (its claims, results) is kept."""
     missing = set()
     for folder in folders:
         for part in (folder, *folder.parents):

@@ -1394,3 +1394,22 @@ def test_a_stream_into_a_folder_another_stream_saves_into_is_refused_before_the_
     assert not out.exists()
     assert main(command) == 0  # released: the stream runs
     assert len(list(out.glob("frame_*.npz"))) == len(NAMES)
+
+
+def test_frames_results_are_refused_a_folder_a_stream_saves_into_also_when_only_the_loaded_model_tells_the_settings(
+    tiny_model, tmp_path, capsys
+):
+    """With --full-frame (or on a GPU) only the loaded model tells a run's settings, so its outputs are held once
+    it has loaded: a folder another live run holds (here a stream saving into it, held by this process) is refused
+    then, in one line, and nothing is written; released, the same command infers all four."""
+    from nlipscalib.cli._stream import held_stream_folder
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    with held_stream_folder(str(out), "nlips live"):
+        assert main([*command, "--full-frame"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{out}: another run (nlips live, process " in lines[0], lines
+    assert "is saving into it; left to it: run again once it has ended, or infer into another --out" in lines[0]
+    assert not out.exists()
+    assert main([*command, "--full-frame"]) == 0
+    assert len(list(out.rglob("report.json"))) == 4
