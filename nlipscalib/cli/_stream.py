@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
 
     import numpy as np
 
+    from ..core.claims import Owner
     from ..device.camera import FrameSource
     from ..emulator import EmulatedCamera
     from ..learn.infer import Predictor
@@ -164,6 +165,51 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     check_count("--threads", args.threads, minimum=0)
     if typed(args, ("every",)) and not out:  # after the checks: a refused value's error line comes alone
         log.warning("--every without an output folder: no frames are kept")
+
+
+def hold_output(
+    stack: contextlib.ExitStack, out: str | Path, key: str, refusal: Callable[[Owner], str], note: dict
+) -> None:
+    """Hold the output folder ``out`` for ``key`` in ``stack`` until it closes, together with every run holding it
+    for the same key (core.claims.held_for, as ``nlips solve`` holds its results: ``.claim-OUT~run~KEY~TOKEN``
+    beside it, a killed run's going stale); ``out`` itself is not made. Raises ConfigError with ``refusal(holder)``
+    when a live run of another key holds it. Used by ``nlips infer`` (its results, for its model and options) and
+    by the streams' ``--out`` (:func:`held_stream_folder`)."""
+    import os
+
+    from ..core.claims import RUN_HOLD, held_for
+    from .folders import remove_if_left_empty
+
+    folder = Path(os.path.abspath(out))  # "--out ." has no name to hold beside
+    remove_if_left_empty(stack, [folder.parent])  # a run ending before it writes leaves no folder made for the claim
+    stack.enter_context(held_for(folder.with_name(folder.name + RUN_HOLD), key, refusal, note=note))
+
+
+STREAM_COMMAND = "command"
+"""The field of a hold's note (:func:`hold_output`) naming the command holding the folder ("nlips live")."""
+
+
+@contextlib.contextmanager
+def held_stream_folder(out: str | None, command: str):
+    """Hold a stream's output folder ``out`` (``nlips live --out``, ``nlips infer STREAM --out``) for this run alone
+    while the block runs (:func:`hold_output`); nothing without ``out``.
+
+    Raises ConfigError, one line naming the folder and the other process, when another live run holds it. Why: two
+    streams into one folder each replaced the other's ``frame_NNNNNN`` files, both exiting 0 and each saying
+    "saved: N of N frames": a folder of two streams' frames, none whole. A stream's frames are numbered from 0 at
+    every run, so no two streams share a folder (each holds it under a key of its own)."""
+    import secrets
+
+    if not out:
+        yield
+        return
+    refusal = lambda other: (  # noqa: E731
+        f"{out}: another run ({(other.note or {}).get(STREAM_COMMAND, 'nlips')}, {other.who}) is saving into it; "
+        "left to it: save into another --out, or run again once it has ended"
+    )
+    with contextlib.ExitStack() as stack:  # a key of this run's alone: any other live run is refused
+        hold_output(stack, out, secrets.token_hex(8), refusal, {STREAM_COMMAND: command})
+        yield
 
 
 def warn_earlier_frames(out: Path) -> None:

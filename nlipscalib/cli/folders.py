@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterable
 from pathlib import Path
 
 from ..core.errors import ConfigError
@@ -82,3 +84,27 @@ def _pressed(press: dict) -> str:
     if isinstance(size, (int, float)):
         what += f" of {size:g} mm"
     return what + (f" pressed {depth:.2f} mm deep" if isinstance(depth, (int, float)) else "")
+
+
+def remove_if_left_empty(stack: contextlib.ExitStack, folders: Iterable[Path]) -> None:
+    """Have ``stack`` remove, as it closes, each of ``folders`` (and their ancestors) that does not exist now and is
+    empty then, deepest first; call it before entering what may make them (the run's holds: core.claims makes the
+    folder a claim file lies in).
+
+    Why: a run's holds on its outputs are taken before its inputs are read, and make the folders their claim files
+    lie in (``OUT/PRESS`` for a press's result under --out, a missing parent of --out); a run refused for a bad
+    input or model (one line, nothing written) left them empty behind it. A folder another process has put
+    something into meanwhile (its claims, results) is kept."""
+    missing = set()
+    for folder in folders:
+        for part in (folder, *folder.parents):
+            if part.exists():
+                break
+            missing.add(part)
+
+    def remove() -> None:
+        for part in sorted(missing, key=lambda p: len(p.parts), reverse=True):
+            with contextlib.suppress(OSError):  # not empty (a result, another run's claim), or gone
+                part.rmdir()
+
+    stack.callback(remove)

@@ -28,6 +28,7 @@ from ._stream import (
     check_output_arguments,
     check_source_arguments,
     emulate_behind_port,
+    held_stream_folder,
     saved_line,
 )
 from .options import option, typed
@@ -37,6 +38,7 @@ if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are 
 
     import numpy as np
 
+    from ..core.claims import Owner
     from ..core.surface_files import GroundTruth
     from ..device.live import FrameReader, LiveStats
     from ..learn.infer import Frame, Predictor
@@ -258,13 +260,14 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
         _check_video(what)
         args.camera = what
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
-    predictor = nlipsnet_predictor(args, depth=not args.no_depth)
-    if args.out:
-        warn_earlier_frames(pathlib.Path(args.out))
-    size_emulator_for(args, predictor.shape)
-    check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
-    with SigtermEndsStream() as term:
-        code = _stream_and_finish(args, name, predictor, term)
+    with held_stream_folder(args.out, "nlips infer"):  # another stream into --out: refused before the model loads
+        predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+        if args.out:
+            warn_earlier_frames(pathlib.Path(args.out))
+        size_emulator_for(args, predictor.shape)
+        check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
+        with SigtermEndsStream() as term:
+            code = _stream_and_finish(args, name, predictor, term)
     if term.received:  # `kill`: the summary and stream.json above, then the "terminated" line and 143
         from . import terminated
 
@@ -550,6 +553,13 @@ def _write_stream_report(
 
 # ---------------------------------------------------------------------- presses and still frames
 def _run_stills(args: argparse.Namespace) -> int:
+    """Infer the presses and frames of ``args``, their result folders held for this run's model and options until
+    it ends (:func:`_hold_results`)."""
+    with contextlib.ExitStack() as run_hold:
+        return _infer_stills(args, run_hold)
+
+
+def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> int:
     import time
 
     from ..core.errors import CaptureError
@@ -563,6 +573,8 @@ def _run_stills(args: argparse.Namespace) -> int:
     frames = list(_frames(args.inputs))
     saved = _check_destinations(args, frames)
     early = _settings_before_loading(args)
+    if early is not None:  # a run of another model is refused before its model loads (and before a re-run says kept)
+        _hold_results(run_hold, args, saved, early)
     looked = _look_before_loading(args, frames, early) if early is not None else {}
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
@@ -577,6 +589,8 @@ def _run_stills(args: argparse.Namespace) -> int:
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
+        run_hold.close()  # (none held on a GPU or with --full-frame: only the loaded model tells the settings)
+        _hold_results(run_hold, args, saved, settings)
     inner, kept, failed = [], set(), {}
     # a folder of frames all taken otherwise logged the same long warning for each: the first 3, then counted
     unlike = RepeatedWarning(log, "an input unlike the calibration's reference", first=STILLS_WARNED_IN_FULL)
@@ -1039,6 +1053,46 @@ def _interrupted_write(folder: Path) -> bool:
 
     beside = folder.parent.glob(glob.escape(f"{TMP_PREFIX}{folder.name}{OWNER_SEP}") + "*")
     return any(p.name[len(TMP_PREFIX) :].rsplit(OWNER_SEP, 3)[0] == folder.name for p in beside)
+
+
+def _hold_results(
+    held: contextlib.ExitStack, args: argparse.Namespace, saved: Iterable[tuple[Path, bool]], settings: dict
+) -> None:
+    """Hold this run's outputs for its model and options (``settings``, :func:`output_settings`) in ``held`` until
+    the run ends, together with every run of the same ones, as ``nlips solve`` holds its results
+    (cli._stream.hold_output): each press's result folder (``PRESS/nlipsnet``, ``OUT/PRESS/nlipsnet``), and the
+    --out folder of frames' results (``OUT/FRAME``) as one (a hold per frame read the whole folder per frame).
+
+    Raises ConfigError, one line naming the folder, what differs and the other process, when a live run of another
+    model or options (or a stream) holds one; what was held before it is released, nothing is written. Why: two
+    runs of two models into one --out both exited 0, each publishing over the other press by press (one run said
+    "saved: 6 result folders" and none held its results). Taken in one order (sorted), each in one short step,
+    and never waited for: two runs arriving at once cannot each hold what the other needs (the first to reach the
+    first output they share goes on, the other is refused there). Runs of the same model and options share the
+    outputs and split the work (:func:`_inferred_elsewhere`)."""
+    from pathlib import Path
+
+    from ._stream import hold_output
+
+    record = {"model": str(Path(args.model).resolve()), "provenance": still_provenance(settings, {})}
+    for target in sorted({folder if is_press else folder.parent for folder, is_press in saved}):
+        refusal = lambda other, target=target: _held_elsewhere(target, other, record)  # noqa: E731
+        hold_output(held, target, record["provenance"]["key"], refusal, record)
+
+
+def _held_elsewhere(folder: Path, other: Owner, record: dict) -> str:
+    """The refusal of an output ``folder`` that ``other``, a live run of another model or options, holds."""
+    from ._stream import STREAM_COMMAND
+
+    theirs = other.note if isinstance(other.note, dict) else {}
+    if STREAM_COMMAND in theirs:  # a stream's --out
+        doing = f"another run ({theirs[STREAM_COMMAND]}, {other.who}) is saving into it"
+    else:
+        differs = "; ".join(_what_changed(theirs, record)) if "provenance" in theirs else "other settings"
+        doing = (
+            f"another run is inferring into it with {differs.replace('another model', 'its model', 1)} ({other.who})"
+        )
+    return f"{folder}: {doing}; left to it: run again once it has ended, or infer into another --out"
 
 
 def _inferred_elsewhere(folder: Path, held: contextlib.ExitStack, provenance: dict, figures: str) -> bool:

@@ -28,6 +28,7 @@ from ._stream import (
     check_output_arguments,
     check_source_arguments,
     emulate_behind_port,
+    held_stream_folder,
     nlipsnet_predictor,
     open_frames,
     running_rate_report,
@@ -235,8 +236,7 @@ def _checked_first_call(spec: str, predict: Predict) -> Predict:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
-    from ..core.errors import ConfigError, NlipsError
-    from ..report.live import window_problem
+    from ..core.errors import ConfigError
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -248,10 +248,19 @@ def run(args: argparse.Namespace) -> int:
     emulate_behind_port(args)
     check_source_arguments(args)
     check_output_arguments(args, args.out)
-    if args.out:
-        warn_earlier_frames(Path(args.out))
     if args.max_frames is not None:
         check_count("--max-frames", args.max_frames, minimum=1)
+    with held_stream_folder(args.out, "nlips live"):  # another stream saving into --out: refused (one line)
+        if args.out:
+            warn_earlier_frames(Path(args.out))
+        return _run_held(args)
+
+
+def _run_held(args: argparse.Namespace) -> int:
+    """:func:`run` once its arguments are checked and its --out folder held."""
+    from ..core.errors import NlipsError
+    from ..report.live import window_problem
+
     no_window = "--no-window" if args.no_window else window_problem()
     done = {}
     with SigtermEndsStream() as term:

@@ -44,6 +44,11 @@ CLAIM_POLL_S = 0.5
 SHARE_SEP = "~"
 """Joins a shared claim's target name, key and token into its holder's claim (``.claim-NAME~KEY~TOKEN``). Not a dot:
 a name with a dot after ``.claim-`` is a claim's short-lived sibling to the cleaners (core.atomic), not a claim."""
+RUN_HOLD = "~run"
+"""Suffix of the name under which runs hold an output for their settings from their start to their end
+(``.claim-NAME~run~KEY~TOKEN`` beside ``NAME``, :func:`held_for`): ``nlips solve``'s results, ``nlips infer``'s
+results and streams' folders. Not the output's own name, whose exclusive claim a process writing it holds for
+seconds."""
 HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""

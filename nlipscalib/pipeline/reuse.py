@@ -46,11 +46,6 @@ def _claim(target: Path):
     return claim(target)
 
 
-RUN_HOLD = "~run"
-"""Suffix of the name under which runs hold an output for their settings (``PRESS/.claim-nlips~run~KEY~TOKEN``,
-:func:`_hold`): not the output's own name, whose exclusive claim a process solving the press holds for seconds."""
-
-
 @contextlib.contextmanager
 def _hold(folder: Path, out: Path, record: dict) -> Iterator[None]:
     """Hold ``out`` for the settings of ``record`` (provenance.run_record) while the block runs, together with every
@@ -62,7 +57,7 @@ def _hold(folder: Path, out: Path, record: dict) -> Iterator[None]:
     folder that cannot hold a claim file (read-only media) is not held: a result there can still be reused, and a
     solve says why it cannot write.
     """
-    from ..core.claims import held_for
+    from ..core.claims import RUN_HOLD, held_for
 
     refusal = lambda other: _held_elsewhere(folder, out, other, record)  # noqa: E731
     with held_for(out.with_name(out.name + RUN_HOLD), record["key"], refusal, note=record):

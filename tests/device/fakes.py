@@ -224,3 +224,30 @@ def skewed_emulated_camera(power: float = 1.0, droop: float = 1.0):
             self._scale = 0.05 * (value / 0.05) ** power  # 10 ms is scale 1: 0.5 ms, 0.05, is where the two agree
 
     return Camera
+
+
+SECOND_STREAM: dict = {}
+""":func:`predictor_running_a_second_stream`'s command (``argv``, set by the test) and what it gave (``code``,
+``err``)."""
+
+
+def predictor_running_a_second_stream(shape):
+    """:func:`flat_predictor` which, at its first frame, runs ``nlips SECOND_STREAM["argv"]...`` as a process of its
+    own and waits for it: a second stream started while this one streams and saves."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    flat = flat_predictor(shape)
+
+    def predict(frame):
+        if "code" not in SECOND_STREAM:
+            root = str(Path(__file__).resolve().parents[2])
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (root, os.environ.get("PYTHONPATH"))))}
+            argv = [sys.executable, "-m", "nlipscalib", *SECOND_STREAM["argv"]]
+            done = subprocess.run(argv, capture_output=True, text=True, env=env)
+            SECOND_STREAM.update(code=done.returncode, err=done.stderr)
+        return flat(frame)
+
+    return predict

@@ -486,3 +486,34 @@ def test_live_into_a_folder_of_an_earlier_runs_frames_warns_that_they_may_mix(fr
     warned = [r.getMessage() for r in caplog.records if "earlier run" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith(f"{out}: holds 5 frame(s) an earlier run saved"), warned
     assert "frame_000000.npz" in warned[0] and "another --out" in warned[0]
+
+
+def test_a_second_stream_into_the_folder_a_live_stream_saves_into_is_refused(frames, tmp_path, capsys, monkeypatch):
+    """Two streams into one --out (`nlips live`, `nlips infer` of a video or camera) both exited 0, each replacing the
+    other's frame_NNNNNN files and saying "saved: N of N frames": a folder of two streams' frames. Now a stream holds
+    its folder from start to end (core.claims.held_for, as `nlips solve` holds its results): a second one, a
+    process of its own started while the first saves its frames, is refused in one line naming the folder and the
+    first's process, and writes nothing; the first saves every frame. A killed stream's hold does not block."""
+    import json
+    import os
+
+    from nlipscalib.core.claims import HOST
+
+    from ..core.test_atomic import _dead_pid
+    from . import fakes
+
+    out = tmp_path / "maps"
+    live = ["live", "--camera", str(frames), "--no-window", "--out", str(out)]
+    monkeypatch.setattr(fakes, "SECOND_STREAM", {"argv": [*live, "--predictor", "tests.device.fakes:flat_predictor"]})
+    assert main([*live, "--predictor", "tests.device.fakes:predictor_running_a_second_stream"]) == 0
+    assert "saved: 5 of 5 frames" in capsys.readouterr().err
+    lines = fakes.SECOND_STREAM["err"].strip().splitlines()
+    assert fakes.SECOND_STREAM["code"] == 2 and len(lines) == 1, lines
+    assert f"{out}: another run (nlips live, process {os.getpid()} on {HOST}) is saving into it" in lines[0]
+    assert sorted(p.name for p in out.glob("*.npz")) == [f"frame_{k:06d}.npz" for k in range(5)]
+    assert not list(tmp_path.glob(".claim-*"))
+
+    killed = tmp_path / ".claim-maps~run~0123456789abcdef~k9"  # a stream killed while it saved
+    killed.write_text(json.dumps({"host": HOST, "pid": _dead_pid(), "token": "k9"}), encoding="utf-8")
+    assert main([*live, "--predictor", "tests.device.fakes:flat_predictor"]) == 0
+    assert "saved: 5 of 5 frames" in capsys.readouterr().err and not killed.exists()

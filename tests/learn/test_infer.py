@@ -1277,3 +1277,139 @@ def test_an_older_result_recording_a_relative_model_path_is_not_said_to_be_anoth
     assert _what_changed({"model": "model/m.pt"}, new) == [older]
     assert _what_changed({"model": "/lab/other.pt"}, new) == ["another model (/lab/other.pt)", older]
     assert _what_changed({"model": "/lab/model/m.pt"}, new) == [older]
+
+
+def _infer_in_a_process(command):
+    """`nlips infer ...` run as another process (its own pid: a run of its own), returning (exit status, stderr)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (root, os.environ.get("PYTHONPATH"))))}
+    done = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", *command], capture_output=True, text=True, env=env
+    )
+    return done.returncode, done.stderr
+
+
+def test_a_run_of_another_model_into_the_folders_a_live_run_holds_is_refused_and_one_of_the_same_shares(
+    tiny_model, tmp_path, monkeypatch, capsys
+):
+    """Two `nlips infer` of two models into one --out at once both exited 0, each publishing over the other press by
+    press (the QA walk: every result the first model's, while the second said "saved: 6 result folders"). Now a run
+    holds its result folders for its model and options from start to end, as `nlips solve` holds its results: a
+    run of another model is refused in one line naming the folder and this process, before anything is written;
+    a run of the same model shares the folders. The other runs are processes of their own, started while this
+    one holds its folders and loads its model."""
+    import json
+    import os
+    from pathlib import Path
+
+    import torch
+
+    from nlipscalib.cli import _stream
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    model = command[1]
+    payload = torch.load(model, weights_only=True)
+    payload["info"]["note"] = "retrained"  # another model: another content
+    other = tmp_path / "other.pt"
+    torch.save(payload, other)
+    others = {}
+    load = _stream.nlipsnet_predictor
+
+    def load_meanwhile(*args, **kwargs):  # this run holds its folders now; it has inferred nothing yet
+        if not others:
+            others["another model"] = _infer_in_a_process(["infer", str(other), *command[2:]])
+            others["the same model"] = _infer_in_a_process(command)
+        return load(*args, **kwargs)
+
+    monkeypatch.setattr(_stream, "nlipsnet_predictor", load_meanwhile)
+    assert main(command) == 0
+    said = capsys.readouterr().err
+    code, err = others["another model"]
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert f"{out}: another run is inferring into it with its model ({Path(model).resolve()})" in lines[0]
+    assert f"(process {os.getpid()} on " in lines[0] and "left to it: run again once it has ended" in lines[0]
+    assert others["the same model"][0] == 0, others["the same model"][1]  # it inferred them: this run kept them
+    assert said.startswith("0 frame(s) inferred, 4 kept"), said
+    from nlipscalib.learn.onnx_export import file_digest
+
+    reports = sorted(out.rglob("report.json"))
+    assert len(reports) == 4
+    made_by = {json.loads(r.read_text())["provenance"]["settings"]["model_digest"] for r in reports}
+    assert made_by == {file_digest(model)}  # nothing of the other model's, nothing mixed
+    assert not list(tmp_path.rglob(".claim-*"))
+
+
+def test_a_killed_runs_hold_on_the_result_folders_neither_blocks_nor_stays(tiny_model, tmp_path, capsys):
+    """A run of another model killed (SIGKILL, a power cut) while it held its outputs leaves its claims (the frames'
+    --out folder's ``.claim-out~run~KEY~TOKEN`` beside it, and the short ``.claim-nlipsnet~run`` it took to join the
+    press's result's holders): they are a dead process's, so the next run infers as it would have (all four
+    results) and removes them as it ends."""
+    import json
+
+    from nlipscalib.core.claims import HOST
+    from tests.core.test_atomic import _dead_pid
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    dead = {"host": HOST, "pid": _dead_pid(), "token": "k9"}
+    note = {"model": "/elsewhere/m.pt", "provenance": {"key": "0123456789abcdef", "settings": {}}}
+    (out / "press").mkdir(parents=True)
+    left = [tmp_path / ".claim-out~run~0123456789abcdef~k9", out / "press" / ".claim-nlipsnet~run"]
+    left[0].write_text(json.dumps(dead | {"note": note}), encoding="utf-8")
+    left[1].write_text(json.dumps(dead), encoding="utf-8")
+    assert main(command) == 0
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
+    assert len(list(out.rglob("report.json"))) == 4
+    assert not list(tmp_path.rglob(".claim-*"))
+
+
+def test_a_stream_into_a_folder_another_stream_saves_into_is_refused_before_the_model_loads(
+    tiny_model, tmp_path, capsys
+):
+    """`nlips infer` of a video, an image sequence or a camera with --out holds its folder as `nlips live` does
+    (cli._stream.held_stream_folder): while another stream saves there it is one line naming the folder, exit 2,
+    nothing written. The other stream is held here by this process (the mechanism is a process's claim; the test of
+    two processes is tests/device/test_live.py's)."""
+    import shutil
+
+    from nlipscalib.cli._stream import held_stream_folder
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    sequence = tmp_path / "seq"
+    sequence.mkdir()
+    for k, name in enumerate(NAMES):
+        shutil.copy(root / name / "tricolor.png", sequence / f"img_{k:04d}.png")
+    out = tmp_path / "maps"
+    command = ["infer", str(model), str(sequence / "img_%04d.png"), "--out", str(out)]
+    with held_stream_folder(str(out), "nlips live"):
+        assert main(command) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{out}: another run (nlips live, process " in lines[0], lines
+    assert not out.exists()
+    assert main(command) == 0  # released: the stream runs
+    assert len(list(out.glob("frame_*.npz"))) == len(NAMES)
+
+
+def test_frames_results_are_refused_a_folder_a_stream_saves_into_also_when_only_the_loaded_model_tells_the_settings(
+    tiny_model, tmp_path, capsys
+):
+    """With --full-frame (or on a GPU) only the loaded model tells a run's settings, so its outputs are held once
+    it has loaded: a folder another live run holds (here a stream saving into it, held by this process) is refused
+    then, in one line, and nothing is written; released, the same command infers all four."""
+    from nlipscalib.cli._stream import held_stream_folder
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    with held_stream_folder(str(out), "nlips live"):
+        assert main([*command, "--full-frame"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{out}: another run (nlips live, process " in lines[0], lines
+    assert "is saving into it; left to it: run again once it has ended, or infer into another --out" in lines[0]
+    assert not out.exists()
+    assert main([*command, "--full-frame"]) == 0
+    assert len(list(out.rglob("report.json"))) == 4
