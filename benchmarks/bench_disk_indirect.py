@@ -18,6 +18,11 @@ MODE: ``points`` (the file's points), ``disks`` (the file's disks, the term of i
 outer loop's solved-surface falloff), ``disks-off-view`` (the off-view dome's light). Without ``--reference``
 the press itself is the undeformed capture (as ``nlips solve PRESS``). Give each MODE its own ``NLIPS_CACHE_DIR``:
 the cached interreflection fit and reference shading are keyed by the point LEDs, not by what shaded them.
+
+Since s33-diskterm the product does this itself: a disk solve's term is shaded with its disks
+(``solver.indirect.term_shading``), so ``disks`` here is what ``disks-consistent`` measured before (the patches
+below then find no point-LED shading of the term to swap), and the script reproduces the old numbers only on the
+revision before it (``0c950d6f``).
 """
 
 from __future__ import annotations

@@ -336,13 +336,39 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
     -------
     shading : (L, ..., 3) float64 -- as :func:`led_shading`.
     """
-    if not radius >= 0:
-        raise ConfigError(f"LED disk radius must be >= 0 mm, got {radius}")
     leds = tuple(leds)
     if radius == 0 or not leds:
+        _check_radius(radius)
         return led_shading(points, normals, leds)
+    psi = led_arrays(leds)[3]
+    mean = disk_falloff(points, normals, leds, radius)
+    return mean[..., None] * psi.reshape((len(leds),) + (1,) * (mean.ndim - 1) + (3,))
+
+
+def _check_radius(radius: float) -> None:
+    if not radius >= 0:
+        raise ConfigError(f"LED disk radius must be >= 0 mm, got {radius}")
+
+
+def disk_falloff(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: float) -> np.ndarray:
+    """:func:`disk_shading` without the LEDs' per-channel intensity (as :func:`led_falloff` of
+    :func:`led_shading`): ``disk_shading = disk_falloff[..., None] * Psi``; :func:`led_falloff` at ``radius`` 0.
+
+    Parameters
+    ----------
+    points, normals : (..., 3) float, mm / unit, camera frame; leds : sequence of Led, length L (disk centres and
+    axes); radius : float, mm, >= 0.
+
+    Returns
+    -------
+    (L, ...) float64 -- the mean over the disk of (n_s.d)^mu max(0, cos) / r^2 per LED.
+    """
+    _check_radius(radius)
+    leds = tuple(leds)
+    if radius == 0 or not leds:
+        return led_falloff(points, normals, leds)
     points, normals = _points_and_normals(points, normals)
-    pos, dirs, mu, psi = led_arrays(leds)
+    pos, dirs, mu, _ = led_arrays(leds)
     flat_points, flat_normals = points.reshape(-1, 3), normals.reshape(-1, 3)
     # the weighted mean of the falloff, then times Psi (as led_falloff): arrays, not an Led per quadrature point
     # (building and validating 7 of them per evaluation was 12 % of a disk calibration's CPU, s29-diskcost)
@@ -354,7 +380,7 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
         for i in range(len(pos)):
             for c, w in zip(centres[i], DISK_RULE_WEIGHTS):
                 mean[i, block] += w * _falloff(x, n, c, dirs[i], mu[i])
-    return (mean[:, :, None] * psi[:, None, :]).reshape((len(pos),) + points.shape)
+    return mean.reshape((len(pos),) + points.shape[:-1])
 
 
 def disk_points(positions: np.ndarray, directions: np.ndarray, radius: float) -> np.ndarray:

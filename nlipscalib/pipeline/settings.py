@@ -75,7 +75,8 @@ def make_settings(
     """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`.
 
     ``led_model`` "disks": the LED file's fitted disk emitters and their radius are solve_press's ``emitters`` and
-    ``led_radius`` (recorded in ``solver_keywords``); its point LEDs stay ``leds``."""
+    ``led_radius`` (recorded in ``solver_keywords``), the NLiPs solves' and the indirect term's LEDs; its point LEDs
+    stay ``leds`` (the ``--roi auto`` edge's point-LED misfit)."""
     from ..solver import SolverOptions
 
     if options is None:
@@ -87,7 +88,7 @@ def make_settings(
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
     if led_model not in ("points", "disks"):
         raise ConfigError(f"led_model must be 'points' or 'disks', got {led_model!r}")
-    if led_model == "disks":  # the file's points stay the contact map's and indirect term's LEDs
+    if led_model == "disks":  # the disks are the NLiPs solves', the indirect term's and the contact map's LEDs
         emitters, radius = disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder

@@ -28,7 +28,7 @@ from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
-from ..core.leds import Leds, led_arrays, led_falloff, led_shading
+from ..core.leds import Leds, disk_falloff, disk_shading, led_arrays, led_shading
 from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
 from .exposure import no_light_reason
@@ -153,8 +153,11 @@ def fit_patch_size(camera: Camera) -> int:
     return max(2, round(max(camera.shape) / FIT_PATCH_TARGET))
 
 
-def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Direct shading of a surface at every pixel (``core.leds.led_shading``), 0 off the gel.
+def direct_shading(
+    camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray, radius: float = 0.0
+) -> np.ndarray:
+    """Direct shading of a surface at every pixel (``core.leds.led_shading``; LEDs emitting from disks of
+    ``radius`` mm: ``core.leds.disk_shading``), 0 off the gel.
 
     Computed once per solve for the reference surface and shared by the indirect fit, the contact
     classification and the outer loop (a full-frame evaluation costs ~0.4 s; a solve needed six).
@@ -165,6 +168,7 @@ def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.nd
     leds : sequence of Led, length L
     depth : (H, W) float, mm (z), camera frame; NaN off the gel.
     normals : (H, W, 3) float, unit, camera frame, toward the camera.
+    radius : the LEDs' emitting disk radius, mm (their centres and axes ``leds``); 0: point LEDs.
 
     Returns
     -------
@@ -173,17 +177,36 @@ def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.nd
     valid = np.isfinite(depth)
     pts = depth_to_points(np.where(valid, depth, 0.0), camera.rays)
     nrm = np.where(valid[..., None], normals, 0.0).astype(np.float64)
-    return _shading_on_threads(pts, nrm, valid, tuple(leds))
+    return _shading_on_threads(pts, nrm, valid, tuple(leds), radius)
 
 
-def _shading_on_threads(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, leds: Leds) -> np.ndarray:
-    """``led_shading`` of a grid of points, 0 where not ``valid``, by blocks of rows on the thread pool.
+def term_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: float = 0.0) -> np.ndarray:
+    """The indirect term's direct light of its LEDs: ``core.leds.led_shading``, or ``core.leds.disk_shading`` of
+    disks of ``radius`` mm (> 0; the solve's ``--led-model disks``): the term shades with the LED model the solve
+    does (a point term under a disk solve put the disks' loss on one-bounce presses, benchmarks/RESULTS.md,
+    s33-disklose). (L, ..., 3) float64."""
+    return disk_shading(points, normals, leds, radius) if radius > 0 else led_shading(points, normals, tuple(leds))
+
+
+def term_key(leds: Leds, radius: float = 0.0) -> tuple:
+    """The term's LEDs as named in the keys of what it caches (shading, surfaces, fits, off-view light): the LEDs
+    alone for point LEDs (the keys as before disks were threaded through), with the disks' radius else, so a disk
+    result is never read back by a point solve nor the other way round."""
+    return tuple(leds) if not radius > 0 else (tuple(leds), ("disk radius mm", float(radius)))
+
+
+def _shading_on_threads(
+    points: np.ndarray, normals: np.ndarray, valid: np.ndarray, leds: Leds, radius: float = 0.0
+) -> np.ndarray:
+    """``led_shading`` (``disk_shading`` at ``radius`` > 0) of a grid of points, 0 where not ``valid``, by blocks
+    of rows on the thread pool.
 
     Parameters
     ----------
     points, normals : (h, w, 3) float64, mm and unit, camera frame (any finite values where not valid).
     valid : (h, w) bool
     leds : tuple of Led, length L
+    radius : the LEDs' disk radius, mm; 0: points.
 
     Returns
     -------
@@ -192,7 +215,10 @@ def _shading_on_threads(points: np.ndarray, normals: np.ndarray, valid: np.ndarr
     out = np.empty((len(leds),) + valid.shape + (3,))
 
     def rows(block: slice):  # written in place by blocks of rows, one per thread: no (L, h, w, 3) temporaries
-        led_shading(points[block], normals[block], leds, out=out[:, block])
+        if radius > 0:
+            out[:, block] = disk_shading(points[block], normals[block], leds, radius)
+        else:
+            led_shading(points[block], normals[block], leds, out=out[:, block])
         out[:, block][:, ~valid[block]] = 0.0
 
     threads.map_items(rows, threads.chunks(valid.shape[0]))
@@ -200,7 +226,7 @@ def _shading_on_threads(points: np.ndarray, normals: np.ndarray, valid: np.ndarr
 
 
 def reference_shading(
-    camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray, defer: bool = False
+    camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray, defer: bool = False, radius: float = 0.0
 ) -> np.ndarray | reuse.Deferred:
     """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor in this
     process (:mod:`nlipscalib.solver.reuse`); read-only.
@@ -213,10 +239,10 @@ def reference_shading(
     Not kept on disk: only a process that misses those consumers' entries needs it (a cold one, which computes
     them from it), and there it costs ~0.2 s to compute against ~0.08 s to read, while writing it cost every
     cold 640x480 command 0.1-0.8 s of system time and took a third of the sensor's cache (benchmarks/RESULTS.md,
-    s17-f)."""
+    s17-f). ``radius``: the LEDs' disk radius, mm (:func:`term_shading`; in the key, :func:`term_key`)."""
     leds = tuple(leds)
-    key = (camera, leds, surface_digest(depth, normals))
-    shading = reuse.deferred("shading", key, lambda: direct_shading(camera, leds, depth, normals))
+    key = (camera, term_key(leds, radius), surface_digest(depth, normals))
+    shading = reuse.deferred("shading", key, lambda: direct_shading(camera, leds, depth, normals, radius))
     return shading if defer else shading.values()
 
 
@@ -227,20 +253,22 @@ def reference_surface(
     normals: np.ndarray,
     size: int | None = None,
     shading: np.ndarray | reuse.Deferred | None = None,
+    radius: float = 0.0,
 ) -> Surface:
     """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor (in this
     process and the next); its arrays are read-only (:meth:`Surface.replaced` copies what it changes).
     ``shading``: its :func:`direct_shading` (or :func:`reference_shading`'s deferred one, read only when the
-    surface is made here), or None."""
+    surface is made here), or None. ``radius``: the LEDs' disk radius, mm (0: points; :func:`term_key`)."""
     leds = tuple(leds)
     size = patch_size(camera) if size is None else int(size)
 
     def make() -> Surface:
-        surf = Surface(camera, leds, np.array(depth), np.array(normals), size, reuse.values(shading))
+        surf = Surface(camera, leds, np.array(depth), np.array(normals), size, reuse.values(shading), radius)
         reuse.freeze(surf.patches, surf.shading, surf.keep, surf.valid, surf.depth, surf.normals)
         return surf
 
-    return reuse.reused("surface", (camera, leds, size, surface_digest(depth, normals)), make, persist=True)
+    key = (camera, term_key(leds, radius), size, surface_digest(depth, normals))
+    return reuse.reused("surface", key, make, persist=True)
 
 
 def surface_digest(depth: np.ndarray, normals: np.ndarray) -> str:
@@ -275,6 +303,8 @@ class Surface:
     size : patch side, pixels (default :func:`patch_size`).
     shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface when the caller
         has it already (None: computed here).
+    radius : the LEDs' emitting disk radius, mm (``leds`` their centres and axes); 0: point LEDs. Every shading
+        of the surface (its own, :meth:`replaced`'s, the off-view dome's at its gathers) uses it.
     """
 
     def __init__(
@@ -285,8 +315,9 @@ class Surface:
         normals: np.ndarray,
         size: int | None = None,
         shading: np.ndarray | None = None,
+        radius: float = 0.0,
     ):
-        self.camera, self.leds = camera, tuple(leds)
+        self.camera, self.leds, self.radius = camera, tuple(leds), float(radius)
         self.valid = np.isfinite(depth)
         self.depth, self.normals = np.asarray(depth), np.asarray(normals)
         self.size = patch_size(camera) if size is None else int(size)
@@ -294,7 +325,7 @@ class Surface:
         nrm = np.where(self.valid[..., None], normals, 0.0).astype(np.float64)
         self.patches = radiosity.surface_patches(pts, nrm, self.valid, camera, self.size)
         if shading is None:
-            shading = direct_shading(camera, self.leds, depth, normals)
+            shading = direct_shading(camera, self.leds, depth, normals, self.radius)
         self.shading = radiosity.patch_mean(self.patches, shading)  # (L, h, w, 3) patch means
         self.keep = self.patches["area"] > 0
 
@@ -347,7 +378,7 @@ class Surface:
             sub = radiosity.surface_patches(
                 pts, nrm, valid, self.camera, s, window=px, solid_angle=self.patches["solid_angle"]
             )
-            falloff = led_falloff(pts, nrm, self.leds)
+            falloff = disk_falloff(pts, nrm, self.leds, self.radius)  # led_falloff at radius 0
             falloff[:, ~valid] = 0.0
             new.valid[px], new.depth[px], new.normals[px] = valid, d, n
             for key in ("points", "normals", "area"):
@@ -428,6 +459,7 @@ def fit_indirect(
     shading: np.ndarray | None = None,
     cache: dict | None = None,
     warm: bool = False,
+    radius: float = 0.0,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -454,6 +486,8 @@ def fit_indirect(
         least-squares one of ``S + kappa G``) instead of kappa = 0; a refit without a press's contact then needs
         an alternation fewer (``light_and_contact.REFIT_ALTERNATIONS``). Without an earlier fit in ``cache``: from
         kappa = 0.
+    radius : the LEDs' emitting disk radius, mm (``leds`` their centres and axes: the solve's disks); 0: point
+        LEDs. The term is fitted with the LED model the solve uses (:func:`term_shading`).
 
     Returns
     -------
@@ -468,7 +502,7 @@ def fit_indirect(
     leds = reference.leds if leds is None else tuple(leds)
     cache = {} if cache is None else cache
     if not cache:
-        cache.update(_fit_inputs(reference, leds, shading))
+        cache.update(_fit_inputs(reference, leds, shading, radius))
     surf, off = cache["surface"], cache["off"]
     img, frac = _patch_data(cache, exclude)
     ok = frac > tolerances.INDIRECT_PATCH_USABLE  # patches wholly usable for that LED and channel
@@ -514,6 +548,7 @@ def fit_patch_share(
     *,
     shading: np.ndarray | reuse.Deferred | None = None,
     cache: dict | None = None,
+    radius: float = 0.0,
 ) -> float:
     """The share of the patches :func:`fit_indirect` can fit on over the whole gel that it still can with
     ``exclude`` left out (0 when it can fit on none at all).
@@ -527,12 +562,12 @@ def fit_patch_share(
     reference : Press -- the capture to fit on, with ``reference`` (depth, normals).
     leds : sequence of Led -- the LED model.
     exclude : (H, W) bool -- the pixels the fit would leave out.
-    shading, cache : as :func:`fit_indirect`'s; ``cache`` is filled here for the fit that follows, which then reads
-        the patch data with this ``exclude`` from it instead of working them out again.
+    shading, cache, radius : as :func:`fit_indirect`'s; ``cache`` is filled here for the fit that follows, which
+        then reads the patch data with this ``exclude`` from it instead of working them out again.
     """
     cache = {} if cache is None else cache
     if not cache:
-        cache.update(_fit_inputs(reference, leds, shading))
+        cache.update(_fit_inputs(reference, leds, shading, radius))
     every = (_patch_data(cache, None)[1] > tolerances.INDIRECT_PATCH_USABLE).any(axis=(0, 2)).sum()
     left = (_patch_data(cache, exclude)[1] > tolerances.INDIRECT_PATCH_USABLE).any(axis=(0, 2)).sum()
     return float(left / every) if every else 0.0
@@ -622,20 +657,19 @@ def _alternate(
     return kappa, G, off_albedo
 
 
-def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferred | None) -> dict:
+def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferred | None, radius: float = 0.0) -> dict:
     """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
     and its light for a unit albedo (both the sensor's alone: reused, :mod:`.reuse`), the linear
-    images, the usable samples and the live LEDs."""
+    images, the usable samples and the live LEDs. ``radius``: the LEDs' disk radius, mm (0: points)."""
     ref = reference.reference
-    surf = reference_surface(
-        reference.camera, leds, ref.depth, ref.normals, size=fit_patch_size(reference.camera), shading=shading
-    )
+    size = fit_patch_size(reference.camera)
+    surf = reference_surface(reference.camera, leds, ref.depth, ref.normals, size, shading, radius)
     design, design_note = capture_design(reference.meta)
     off = off_unit = None
     if design is not None:
         # the surface's digest, not the depth's alone: the light is gathered at its patches' points and normals
         surface = surface_digest(ref.depth, ref.normals)
-        key = (reference.camera, tuple(leds), surf.size, repr(design[0]), tuple(design[1]), surface)
+        key = (reference.camera, term_key(leds, radius), surf.size, repr(design[0]), tuple(design[1]), surface)
         off, off_unit = reuse.reused(
             "off_view", key, lambda: _off_view_light(reference.camera, leds, surf, design), persist=True
         )
@@ -663,9 +697,10 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferr
 def _off_view_light(
     camera: Camera, leds: Leds, surf: Surface, design: tuple[DomeConfig, np.ndarray]
 ) -> tuple[dict, np.ndarray]:
-    """The dome beyond the view as patches, and its direct light gathered at ``surf`` for a unit albedo."""
+    """The dome beyond the view as patches, and its direct light (``surf``'s LED model, :attr:`Surface.radius`)
+    gathered at ``surf`` for a unit albedo."""
     off = radiosity.off_view_patches(design[0], design[1], camera, surf.valid, step_deg=3.0)
-    off_s = led_shading(off["points"], off["normals"], tuple(leds))
+    off_s = term_shading(off["points"], off["normals"], leds, surf.radius)
     return off, radiosity.gather(*surf.receivers(), off, off_s)
 
 
@@ -803,6 +838,7 @@ def surface_indirect(
     shading: np.ndarray | None = None,
     surface: Surface | None = None,
     window: tuple[slice, slice] | None = None,
+    radius: float = 0.0,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -825,13 +861,14 @@ def surface_indirect(
     window : (rows, columns) slices or None -- the part of the frame to return; it holds every receiver (the
         outer loop's box: no whole-frame array per pass, whose pages cost ~35 ms to touch at 640x480). None:
         the whole frame.
+    radius : the LEDs' disk radius, mm, of a surface made here (0: points; ``surface`` carries its own).
 
     Returns
     -------
     (L, H, W, 3) float32, or (L, h, w, 3) over ``window`` -- linear image units (``Press.linear`` scale); 0
     outside ``receivers``.
     """
-    surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
+    surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading, radius)
     albedo, rho_patch = _gel_albedo(surf, albedo)
     size = surf.size
     h, w = surf.patches["area"].shape
@@ -938,7 +975,8 @@ def _gather_at(surf: Surface, rho_patch: np.ndarray, model: IndirectModel, want:
     off = model.off_view
     off_direct = None
     if off is not None:
-        off_direct = led_shading(off["points"], off["normals"], surf.leds) * np.asarray(model.off_view_albedo)
+        off_direct = term_shading(off["points"], off["normals"], surf.leds, surf.radius)
+        off_direct = off_direct * np.asarray(model.off_view_albedo)
         g = g + radiosity.gather(points[want], normals[want], off, off_direct)
     if model.bounces >= 2:
         # second bounce: the first bounce's light over the whole visible surface, gathered again

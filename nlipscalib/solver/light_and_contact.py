@@ -21,7 +21,7 @@ from ..progress import PRESS_DETAIL
 from . import reuse
 from .contact import ContactMap, classify_contact, prepare_press_side
 from .image_stats import led_levels
-from .indirect import IndirectModel, design_of, fit_indirect, fit_patch_share, reference_shading
+from .indirect import IndirectModel, design_of, fit_indirect, fit_patch_share, reference_shading, term_key
 from .press_checks import check_undeformed
 from .roi import box_mask, contact_pixels
 
@@ -55,7 +55,8 @@ class Sources:
 
     press: Press
     leds: Leds
-    """The LEDs the solve uses (``solve_press``'s ``leds`` or the press's)."""
+    """The LEDs the solve uses (``solve_press``'s ``leds`` or the press's; its disks' centres and axes with
+    ``radius``)."""
     ref_capture: Press | None
     """The undeformed dome's capture to fit the term on, or None (the press itself, away from its contact)."""
     fixed_light: np.ndarray | None
@@ -66,6 +67,10 @@ class Sources:
     """The term's mode: "auto", "on" or "off"."""
     bounces: int
     """Diffuse bounces in the term (1 or 2)."""
+    radius: float = 0.0
+    """mm -- the LEDs emit from disks of this radius (the solve's ``--led-model disks``): the reference surface's
+    shading (the fit's, the contact map's, the outer loop's) and the term are the disks'
+    (:func:`.indirect.term_shading`), and their keys name it (:func:`.indirect.term_key`); 0: point LEDs."""
 
 
 def split_indirect(press: Press, indirect: np.ndarray | Press | None) -> tuple[Press | None, np.ndarray | None]:
@@ -93,7 +98,7 @@ def light_and_contact(sources: Sources, dead_level: float) -> _Light:
     # kept (a warm process), it is only named in their keys, and the 88 MB (640x480) array is never loaded
     shading = None
     if prior is not None:
-        shading = reference_shading(press.camera, leds, prior, press.reference.normals, defer=True)
+        shading = reference_shading(press.camera, leds, prior, press.reference.normals, True, sources.radius)
     fit = _indirect_fitter(sources, shading)
     cache = fit.contact_cache if fit else {}
     with ThreadPoolExecutor(1, "contact-press-side") as pool:  # left (joined) before anything else, on an error too
@@ -159,13 +164,14 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
         bounces=bounces,
         shading=shading if source is press else None,
         cache=cache,
+        radius=sources.radius,
     )
     if ref_capture is not None:  # the undeformed capture's fit is the sensor's: reused by later presses
 
         def first():
             model = reuse.reused(
                 "fit",
-                (capture_key(ref_capture), leds, interreflection, bounces),
+                (capture_key(ref_capture), term_key(leds, sources.radius), interreflection, bounces),
                 lambda: fit(exclude=None, iterations=3),
                 persist=True,
             )
@@ -178,7 +184,9 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
             # the press stands in for the undeformed capture: its fit leaves out the user's box when enough of the
             # gel is left outside it; else (no box, or one over most of the gel) a first fit only finds the contact
             # and the fit is made again without it (``again``)
-            if box is not None and not _box_leaves_fit(press, leds, box, interreflection, shading, cache):
+            if box is not None and not _box_leaves_fit(
+                press, leds, box, interreflection, shading, cache, sources.radius
+            ):
                 fitter.refits = True
             return fit(exclude=None if fitter.refits else box, iterations=1 if fitter.refits else 3)
 
@@ -193,14 +201,21 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
 
 
 def _box_leaves_fit(
-    press: Press, leds: Leds, box: np.ndarray, mode: str, shading: reuse.Deferred | None, cache: dict
+    press: Press,
+    leds: Leds,
+    box: np.ndarray,
+    mode: str,
+    shading: reuse.Deferred | None,
+    cache: dict,
+    radius: float = 0.0,
 ) -> bool:
     """Whether the press's own indirect fit can leave out the explicit ROI ``box`` ((H, W) bool): at least
     ``tolerances.INDIRECT_FIT_MIN_SHARE`` of the patches it fits on over the whole gel lie outside it (a box
-    over the whole frame leaves none, a thin ring fits the term low). ``cache``: the fit's, filled here."""
+    over the whole frame leaves none, a thin ring fits the term low). ``cache``: the fit's, filled here;
+    ``radius``: the LEDs' disk radius, mm (0: points)."""
     if mode == "off":  # nothing is fitted
         return True
-    share = fit_patch_share(press, leds, box, shading=shading, cache=cache)
+    share = fit_patch_share(press, leds, box, shading=shading, cache=cache, radius=radius)
     if share >= tolerances.INDIRECT_FIT_MIN_SHARE:
         return True
     log.info(

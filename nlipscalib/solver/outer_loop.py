@@ -67,9 +67,13 @@ class OuterLoop:
         shading: reuse.Deferred | None,
         relaxation: float | str,
         focus: np.ndarray | None = None,
+        radius: float = 0.0,
     ):
         self.model, self.press, self.leds, self.mask, self.relaxation = model, press, leds, mask, relaxation
         self.focus = focus
+        self.radius = radius
+        """mm -- the LEDs' emitting disk radius (``leds`` their centres and axes: the solve's disks); 0: point LEDs.
+        The reference and solved surfaces are shaded with it (:func:`.indirect.term_shading`)."""
         """(H, W) bool or None -- what the passes before the last solve (None: the mask)."""
         x0, y0, w, h = box_of(mask)
         self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
@@ -94,7 +98,9 @@ class OuterLoop:
         result = solve_with(light, unrefined=0 if max_passes == 0 else rough)
         self.solver_seconds.append(result.report["seconds"])
         t0 = time.perf_counter()
-        ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
+        ref_surface = reference_surface(
+            press.camera, self.leds, ref.depth, ref.normals, shading=self.shading, radius=self.radius
+        )
         self.seconds += time.perf_counter() - t0
         settled = False
         before = None  # (surface, focus, reconstructed) of the last gather, when a focus pass followed it

@@ -554,9 +554,12 @@ def _solve_press(
         (:func:`.led_checks.reference_gain`; :func:`solve_press` measures it): the indirect term fitted on that
         capture is scaled by it (:meth:`.indirect.IndirectModel.with_gain`); None: taken as 1.
     led_radius : mm; > 0: the NLiPs solves model the LEDs as disks of this radius (:func:`nlipscalib.solver.solve`'s
-        ``led_radius``), ``emitters`` (or ``leds`` when None); the contact map, anchors and indirect term keep the
-        point LEDs ``leds``, which a point model's consumers need (a disk's best point sits 0.23 mm behind it: the
-        disks as points raised a gel-filling one-bounce view's contact depth RMSE from 0.016 to 0.035 mm); 0: points.
+        ``led_radius``), ``emitters`` (or ``leds`` when None), and so does everything that shades with the LEDs
+        for the indirect term: the reference surface's shading (the term's fit and the contact map read it), the
+        off-view dome's light and the outer loop's reference and solved surfaces (:func:`.indirect.term_shading`;
+        the point term under a disk solve lost 0.5 -> 0.85 deg of a one-bounce gel-filling sphere's whole gel,
+        benchmarks/RESULTS.md, s33-disklose / s33-diskterm); the cached term's keys name the radius. The point
+        LEDs ``leds`` stay where a point model is meant: the ``--roi auto`` edge's point-LED misfit; 0: points.
     emitters : sequence of Led (or their dicts, as an LED file's ``emitters``) -- ``calibrate-leds``' disks, in the
         order of ``leds``; used only with ``led_radius`` > 0.
 
@@ -585,7 +588,10 @@ def _solve_press(
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
-    sources = Sources(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
+    disks = _disk_leds(press, leds, emitters, led_radius)
+    # the indirect term, the contact map and the outer loop shade with the solve's LED model (s33-diskterm)
+    term_leds, term_radius = disks if disks is not None else (leds, 0.0)
+    sources = Sources(press, term_leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, term_radius)
     light = light_and_contact(sources, options.dead_led_level)
     model, cmap = light.model, light.cmap
     linear_notes = _linearity_warnings(press, model, cmap)
@@ -624,11 +630,10 @@ def _solve_press(
     t_contact = light.contact_seconds + time.perf_counter() - t0
 
     images = press.linear_led_images
-    disks = _disk_leds(press, leds, emitters, led_radius)
     run = _Runner(press, leds, images, prior, weights, mask, options, backend, progress, fixed_light, disks)
     if model is not None and model.enabled:
         focus = dent_focus(cmap, mask) if cmap is not None and dent_interreflection else None
-        loop = OuterLoop(model, press, leds, images, mask, light.shading, outer_relaxation, focus)
+        loop = OuterLoop(model, press, term_leds, images, mask, light.shading, outer_relaxation, focus, term_radius)
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)

@@ -187,3 +187,22 @@ def test_an_led_files_not_fitted_leds_are_read_back_and_a_malformed_list_is_name
     with pytest.raises(CaptureError) as err:
         read_led_file(bad)
     assert str(err.value) == f"{bad}: not a valid LED file ('not_fitted' must list LED indices 0-3)"
+
+
+def test_disk_falloff_is_disk_shading_without_psi_and_the_point_falloff_at_radius_zero():
+    """The indirect term's solved patches average the channel-free falloff and multiply by Psi after
+    (``solver.indirect.Surface.replaced``): of disk LEDs the same products as :func:`disk_shading`'s."""
+    from nlipscalib.core.leds import disk_falloff, disk_shading
+
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(4, 5, 3)) * 3 + [0.0, 0.0, 12.0]
+    nrm = -pts / np.linalg.norm(pts, axis=-1, keepdims=True)
+    leds = [Led((5.0, 1.0, 2.0), (-0.3, 0.0, 0.954), 1.7, (1.2, 0.9, 0.7)), Led((-4.0, 3.0, 2.5), (0.2, -0.2, 0.96))]
+    psi = led_arrays(leds)[3][:, None, None, :]
+    falloff = disk_falloff(pts, nrm, leds, 1.8)
+    assert falloff.shape == (2, 4, 5)
+    np.testing.assert_array_equal(falloff[..., None] * psi, disk_shading(pts, nrm, leds, 1.8))
+    assert not np.allclose(falloff, led_falloff(pts, nrm, leds), rtol=1e-4)
+    np.testing.assert_array_equal(disk_falloff(pts, nrm, leds, 0.0), led_falloff(pts, nrm, leds))
+    with pytest.raises(ConfigError):
+        disk_falloff(pts, nrm, leds, -1.0)
