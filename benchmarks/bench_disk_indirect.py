@@ -119,7 +119,7 @@ def main() -> None:
     p.add_argument("--reference", default=None)
     p.add_argument("--out", default=None)
     args = p.parse_args()
-    d = json.loads(Path(args.leds).read_text())
+    d = json.loads(Path(args.leds).read_text(encoding="utf-8"))
     points = tuple(Led.from_dict(x) for x in d["leds"])
     emitters = tuple(Led.from_dict(x) for x in d["emitters"]["leds"])
     radius = float(d["emitters"]["radius_mm"])

@@ -73,7 +73,9 @@ def test_a_right_brackets_times_are_kept_as_named(monkeypatch, exposures):
     frames = _bracket(monkeypatch, "gamma2.2", exposures, shutter=False)
     estimate = estimate_times(frames, exposures, "test")
     assert not estimate.used
-    assert estimate.largest < RESPONSE_ESTIMATE_STEP / 2  # 0.16 / 0.42 %
+    # a margin under the 1.5 % that uses the estimate: right brackets' largest step 0.03-0.84 % over s33-bracket's
+    # 42 runs; 0.17 / 0.85 % here since the emulated camera passes frames through the scene's lens (s33-e2e)
+    assert estimate.largest < RESPONSE_ESTIMATE_STEP * 2 / 3
 
 
 def test_times_a_power_of_the_named_ones_are_not_seen():

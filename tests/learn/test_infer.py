@@ -1340,7 +1340,7 @@ def test_a_run_of_another_model_into_the_folders_a_live_run_holds_is_refused_and
 
     reports = sorted(out.rglob("report.json"))
     assert len(reports) == 4
-    made_by = {json.loads(r.read_text())["provenance"]["settings"]["model_digest"] for r in reports}
+    made_by = {json.loads(r.read_text(encoding="utf-8"))["provenance"]["settings"]["model_digest"] for r in reports}
     assert made_by == {file_digest(model)}  # nothing of the other model's, nothing mixed
     assert not list(tmp_path.rglob(".claim-*"))
 
