@@ -63,8 +63,9 @@ MIN_LIGHT_RATIO = 0.05
 """A synthetic sample is dropped when its three groups together get less than this share of the light they give the
 undeformed surface there: a facet in the shadow of every LED has a colour many normals share."""
 GEL_REFLECTANCE = 0.8
-"""The gel coat's diffuse reflectance: the indirect term's ``a`` (module docstring) in :attr:`TrainConfig`'s default.
-A white matte silicone coat reflects about 0.8 (the default twin's ``albedo``, scenes/nlipstac.toml)."""
+"""A white matte silicone coat's diffuse reflectance (the default twin's ``albedo``, scenes/nlipstac.toml): the value
+to give the indirect term's ``a`` (module docstring; ``TrainConfig.synthetic_reflectance``, `nlips train
+--gel-reflectance`, whose default is 0: direct light only)."""
 MIXING_PRESSES = 4
 """Presses (their single-LED and tri-colour images) the mixing fit reads: the fit has 3x4 unknowns and every pixel
 of one press is already ~100 000 equations; more presses only cost reading time."""
