@@ -55,6 +55,7 @@ SUBCOMMAND_MODULES = (
     "train",
     "export",
     "infer",
+    "verify",
     "cache",
 )
 

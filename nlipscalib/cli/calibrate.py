@@ -10,6 +10,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .options import add_allow_edited
+
 if TYPE_CHECKING:  # named in hints only: the solver is imported when the fit runs
     from ..solver import LedCalibration
 
@@ -103,6 +105,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "missing light_level, disks in one) is said as not compared; a file of another sensor is refused. It may be "
         "the --out file itself (read before it is replaced)",
     )
+    add_allow_edited(p, "calibrate on")
     p.set_defaults(func=run)
 
 
@@ -134,6 +137,10 @@ def run(args: argparse.Namespace) -> int:
         check_one_capture(folder, "a capture of the undeformed dome")
         if not args.allow_contact:
             check_undeformed(folder, "a capture of the undeformed dome", "or pass --allow-contact to fit on it anyway")
+    if not args.allow_edited:  # a file copied over one: one line now, not LEDs fitted to the wrong image
+        from ..core.press_checksums import check_unchanged
+
+        check_unchanged(args.presses, remedy="copy or capture it again")
     with _fit_held(Path(args.out), _fit_key(args)) as done_by:
         if done_by is not None:
             from ..progress import print_result, say

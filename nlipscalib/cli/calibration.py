@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .options import SOLVE_WORKERS_HELP, add_led_model
+from .options import SOLVE_WORKERS_HELP, add_allow_edited, add_led_model
 
 if TYPE_CHECKING:
     from ..learn.dataset import SamplingConfig
@@ -88,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="sigma in px of the Gaussian low-pass on the tri-colour colours the network sees (default: "
         "SamplingConfig's, 1 px; 0: raw pixels)",
     )
+    add_allow_edited(p, "solve and sample")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -96,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.atomic import check_writable
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
+    from ..core.press_checksums import check_unchanged
     from ..core.press_folders import is_press_folder, no_presses_error, split_reference
     from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
@@ -134,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
         raise no_presses_error(root)
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
+    if not args.allow_edited:  # a file copied over one: one line now, not samples of the wrong image
+        check_unchanged([reference, *presses])
     reference_fits(reference, presses)
     responses_agree(reference, presses)
     if args.leds is not None:

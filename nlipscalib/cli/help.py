@@ -75,6 +75,10 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
         ("nlips infer model.pt session", "every press of a folder: PRESS/nlipsnet"),
         ("nlips infer model.pt frames/ --out results --ply", "tri-colour image files, with point clouds"),
     ),
+    "verify": (
+        ("nlips verify session", "every byte of every press against its checksums.json"),
+        ("nlips verify old_dataset --record", "folders written before 2026-12-06: checked, then recorded"),
+    ),
     "cache": (
         ("nlips cache", "where the cache is and how much it takes"),
         ("nlips cache --clear", "empty it"),

@@ -93,3 +93,16 @@ def check_size_pair(width: int | None, height: int | None, scene_size: tuple[int
     from ..core.config import check_size_pair as check
 
     check(width, height, scene_size)
+
+
+def add_allow_edited(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--allow-edited`` (dest ``allow_edited``) of every command that reads presses (``solve``, ``calibrate``,
+    ``calibrate-leds``, ``train``): one flag, :data:`nlipscalib.core.press_checksums.EDITED_OPTION`. ``what``: what
+    the command then does with such a press, for its help."""
+    parser.add_argument(
+        "--allow-edited",
+        action="store_true",
+        help=f"{what} a press whose files are not the size its checksums.json recorded when it was written (images "
+        "edited on purpose); default: refused in one line naming the file, as another file copied over one (a "
+        "stat per file, no image read)",
+    )

@@ -8,7 +8,7 @@ import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from .options import SOLVE_WORKERS_HELP, add_led_model
+from .options import SOLVE_WORKERS_HELP, add_allow_edited, add_led_model
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when a press is solved
     from pathlib import Path
@@ -129,6 +129,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "full (plus a matplotlib summary sheet), none",
     )
     p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
+    add_allow_edited(p, "solve")
     p.add_argument("--no-progress", action="store_true", help="no progress bars (they are off anyway when not a TTY)")
     p.set_defaults(func=run)
 
@@ -164,6 +165,7 @@ def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
 def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, from_mapping, read_config_file
     from ..core.errors import ConfigError
+    from ..core.press_checksums import check_unchanged
     from ..core.press_folders import no_presses_error, split_reference
     from ..core.press_meta import read_meta
     from ..pipeline import SKIPPED, SOLVED, make_settings, result_dir, solve_one, solve_presses
@@ -190,6 +192,8 @@ def run(args: argparse.Namespace) -> int:
         check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or solve without --reference")
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
+    if not args.allow_edited:  # a file copied over one: one line now, not a solve of the wrong image
+        check_unchanged([*presses, reference] if reference is not None else presses)
     if args.config:  # --normals alone sets no min_leds
         _check_min_leds(options, presses[0], args.config)
     if args.out and len(presses) > 1:

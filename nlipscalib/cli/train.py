@@ -9,6 +9,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .options import add_allow_edited
+
 if TYPE_CHECKING:  # named in hints only: torch is imported when a model is trained
     from ..learn.dataset import CalibrationDataset
     from ..learn.train import TrainConfig, TrainResult
@@ -105,6 +107,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "only; a white matte coat: about 0.8)",
     )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
+    add_allow_edited(p, "train on the samples of")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (none either when not on a terminal)")
     p.set_defaults(func=run)
 
@@ -114,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core.config import check_count, options_named
     from ..core.cpus import usable_cores
-    from ..core.errors import ConfigError
+    from ..core.errors import CaptureError, ConfigError
     from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
     from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
@@ -155,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
     data = CalibrationDataset(args.dataset)
     if older := data.older_sampling():
         log.warning("%s", older)
+    if not args.allow_edited and (changed := data.changed_presses()):
+        raise CaptureError(next(iter(changed.values())) + _more_changed(changed))
     val = _names(args.val_presses) or None
     exclude = _names(args.exclude)
     onnx_path = out.with_suffix(".onnx")
@@ -215,6 +220,20 @@ def run(args: argparse.Namespace) -> int:
         say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
     say(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
+
+
+def _more_changed(changed: dict[str, str]) -> str:
+    """What follows the first line of :meth:`CalibrationDataset.changed_presses` in the refusal: the other presses
+    changed (" (2 others changed too: press_0004, press_0007)") and the option that trains anyway."""
+    from ..core.press_checksums import CHANGED_SHOWN, EDITED_OPTION
+
+    others = list(changed)[1:]
+    anyway = f"; or pass {EDITED_OPTION} to train on the samples as they are"
+    if not others:
+        return anyway
+    shown = ", ".join(others[:CHANGED_SHOWN])
+    shown += f" and {len(others) - CHANGED_SHOWN} more" if len(others) > CHANGED_SHOWN else ""
+    return f" ({len(others)} other{'s' if len(others) > 1 else ''} changed too: {shown}){anyway}"
 
 
 def _older_model(out: Path) -> str | None:

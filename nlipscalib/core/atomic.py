@@ -229,6 +229,44 @@ def write_json(path: str | Path, obj: object) -> Path:
     return write_text(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
 
 
+def write_new(path: str | Path, data: bytes) -> bool:
+    """Write ``data`` to ``path`` whole and only if there is no file of that name: False (nothing written) when there
+    is one, even one another process made meanwhile.
+
+    Written under a temporary name, then hard-linked to ``path`` (``link`` fails where the name exists: atomic
+    between processes, also on NFS); on a file system without hard links, created with ``O_EXCL`` and written (a
+    reader may then see it partly written for a moment). Why not :func:`write_bytes`: its rename replaces a file
+    written meanwhile, e.g. a record of a press folder that another process wrote anew (core.press_checksums)."""
+    path = Path(path)
+    tmp = _temporary_name(path)
+    _IN_PROGRESS.add(tmp)
+    try:
+        with open(tmp, "xb") as f:
+            f.write(data)
+        os.chmod(tmp, FILE_MODE)
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return False
+        except OSError as exc:
+            if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
+                raise
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, FILE_MODE)
+            except FileExistsError:
+                return False
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+        return True
+    except BaseException as exc:
+        _raise_with_path(exc, path)
+        raise
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        _IN_PROGRESS.discard(tmp)
+
+
 def write_if_changed(path: str | Path, text: str) -> bool:
     """Write ``text`` to ``path`` atomically unless the file already holds exactly it; True if written.
 

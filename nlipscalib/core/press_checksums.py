@@ -23,7 +23,8 @@ import os
 import zlib
 from pathlib import Path
 
-from .atomic import write_json
+from .atomic import write_json, write_new
+from .errors import CaptureError
 from .file_checks import damage_inside, file_problem
 
 CHECKSUMS_FILE = "checksums.json"
@@ -117,3 +118,156 @@ def _recorded_problem(path: Path, entry: dict, verify: bool) -> str | None:
     except OSError as exc:
         return f"unreadable ({exc.strerror or exc})"
     return None
+
+
+# ---------------------------------------------------------------------- the commands that read presses
+EDITED_OPTION = "--allow-edited"
+"""The option of ``nlips solve``, ``calibrate``, ``calibrate-leds`` and ``train`` that uses presses whose files
+differ from their checksums.json (:func:`check_unchanged`): images a lab edited on purpose."""
+CHANGED_SHOWN = 3
+"""How many changed presses a refusal names (the rest are counted)."""
+
+
+def changed_files(folder: str | Path) -> dict[str, str]:
+    """The files ``folder``'s checksums.json records that are whole at their ends (:func:`.file_checks.file_problem`)
+    but of another size than recorded, each with its problem in a few words: another whole file copied over it (a
+    user tidying up, a copy gone wrong), which the readers' own format checks pass. {} when none, or when the folder
+    has no readable record (written before it existed: judged by the readers as before).
+
+    A ``stat`` per recorded file and one small JSON read; a file's ends are read only where its size differs (a file
+    missing, empty or cut short is left to the reader of the press, which names it as before)."""
+    folder = Path(folder)
+    changed = {}
+    for name, entry in read_checksums(folder).items():
+        try:
+            size = os.stat(folder / name).st_size
+        except OSError:
+            continue  # missing: the press's reader says so, naming it
+        if size != entry["bytes"] and file_problem(folder / name) is None:
+            changed[name] = f"changed since it was written ({size} bytes, {CHECKSUMS_FILE} records {entry['bytes']})"
+    return changed
+
+
+def check_unchanged(folders: list[str | Path], remedy: str | None = None) -> None:
+    """CaptureError (exit 2) in one line naming the first changed file (:func:`changed_files`) of ``folders`` (press
+    folders, the reference among them), the count of other presses changed, and what to do: ``remedy`` or copy or
+    capture the press again; :data:`EDITED_OPTION` to use it as it is. Nothing when every one is unchanged.
+
+    Why: a press with another whole image copied over one (another press's LED image, a tri-colour frame of another
+    session) passed every reader's checks (a whole PNG of the camera's size): ``nlips solve`` solved it, ``nlips
+    calibrate`` sampled it and ``nlips train`` learned from it without a word."""
+    changed = {Path(f): problems for f in folders if (problems := changed_files(f))}
+    if not changed:
+        return
+    (first, problems), *others = changed.items()
+    name, problem = next(iter(problems.items()))
+    more = [f" and {len(problems) - 1} more of its files"] if len(problems) > 1 else []
+    if others:
+        shown = ", ".join(str(f) for f, _ in others[:CHANGED_SHOWN])
+        extra = f" and {len(others) - CHANGED_SHOWN} more" if len(others) > CHANGED_SHOWN else ""
+        more.append(f"; {len(others)} other press{'es' if len(others) > 1 else ''} changed too ({shown}{extra})")
+    remedy = remedy or "copy, capture or render the press again"
+    raise CaptureError(
+        f"{first / name}: {problem}{''.join(more)}: another file copied over it? {remedy}, or pass {EDITED_OPTION} "
+        "to use the files as they are (edited on purpose)"
+    )
+
+
+# ---------------------------------------------------------------------- what a dataset records of its presses
+def files_as_read(folder: str | Path, names: list[str]) -> dict[str, dict]:
+    """What a reader of the press ``folder`` records of its files ``names`` as it reads them: {name: {"bytes": N}},
+    with ``"crc32"`` where checksums.json records the file at that very size (its content as written; a file edited
+    on purpose, :data:`EDITED_OPTION`, has none). A stat per file; no byte read but the record's.
+
+    Why: a calibration dataset's samples are made from its presses' files as they were then; ``nlips train`` compares
+    them with the presses' files now (:func:`changed_since`), so a dataset built before a press was captured or
+    rendered again, or before a file was copied over, is told from one whose presses are as sampled."""
+    folder = Path(folder)
+    recorded = read_checksums(folder)
+    files = {}
+    for name in names:
+        try:
+            size = os.stat(folder / name).st_size
+        except OSError:  # gone: the reader names it; nothing to record
+            continue
+        entry = {"bytes": size}
+        if recorded.get(name, {}).get("bytes") == size:
+            entry["crc32"] = recorded[name]["crc32"]
+        files[name] = entry
+    return files
+
+
+def changed_since(folder: str | Path, files: dict) -> dict[str, str]:
+    """The files of ``files`` (:func:`files_as_read`, as a reader recorded them) that differ in the press ``folder``
+    now, each with its problem in a few words: gone, of another size, or recorded by the press's checksums.json with
+    another CRC-32 (the press written anew at the same sizes). {} when each is as recorded, or ``files`` is not such
+    a record. A stat per file and one small JSON read."""
+    folder = Path(folder)
+    if not isinstance(files, dict):
+        return {}
+    now = read_checksums(folder)
+    problems = {}
+    for name, was in files.items():
+        if not isinstance(was, dict) or not isinstance(was.get("bytes"), int):
+            continue
+        try:
+            size = os.stat(folder / name).st_size
+        except OSError:
+            problems[name] = "missing (there when it was sampled)"
+            continue
+        crc = now.get(name, {}).get("crc32") if now.get(name, {}).get("bytes") == size else None
+        if size != was["bytes"]:
+            problems[name] = f"changed since it was sampled ({size} bytes, {was['bytes']} then)"
+        elif isinstance(was.get("crc32"), str) and crc is not None and crc != was["crc32"]:
+            problems[name] = f"written anew since it was sampled (its {CHECKSUMS_FILE} records another CRC-32)"
+    return problems
+
+
+# ---------------------------------------------------------------------- a record for a folder written before it
+RECORDED, HAD_ONE = "recorded", "had one"
+""":func:`record_checksums`' outcomes besides a problem."""
+
+
+def record_checksums(folder: str | Path) -> str:
+    """Give the press ``folder`` its checksums.json when it has none, once its files are verified: each listed file
+    whole at its ends and its format's own checksums sound (:func:`press_file_problems` with ``verify``), and the
+    press loading as a solve loads it (its images PNGs of the camera's size: :func:`.capture.load_press`). Returns
+    :data:`RECORDED`, :data:`HAD_ONE`, or why not in a few words ("led_02.png damaged inside (...)").
+
+    Safe beside other processes: the record is published only where no file of its name exists
+    (:func:`.atomic.write_new`: two runs at once record once; a press written anew meanwhile by ``nlips dataset``
+    or ``capture`` keeps its own record), and only when no file changed while it was read (each file's inode, size
+    and time the same before and after). CaptureError naming meta.json when it is unreadable."""
+    from .press_meta import META_FILE, listed_files, read_meta
+
+    folder = Path(folder)
+    if (folder / CHECKSUMS_FILE).exists():
+        return HAD_ONE if read_checksums(folder) else f"{CHECKSUMS_FILE} unreadable (delete it to record it anew)"
+    names = listed_files(read_meta(folder))
+    if problems := press_file_problems(folder, names, verify=True):
+        return described_file_problems(problems)
+    from .capture import load_press
+
+    try:  # its images whole PNGs of the camera's size, its reference of the right shape: as a solve loads it
+        load_press(folder, decode=False)
+    except CaptureError as exc:
+        return str(exc).removeprefix(f"{folder}{os.sep}").removeprefix(f"{folder}: ")
+    before = _stamps(folder, [META_FILE, *names])
+    files = {name: {"bytes": before[name][1], "crc32": file_crc32(folder / name)} for name in names}
+    if _stamps(folder, [META_FILE, *names]) != before:
+        return "its files changed while they were read (being written?): run again"
+    record = {"format": CHECKSUMS_FORMAT, "format_version": CHECKSUMS_VERSION, "files": files}
+    data = (json.dumps(record, indent=2) + "\n").encode()
+    return RECORDED if write_new(folder / CHECKSUMS_FILE, data) else HAD_ONE
+
+
+def _stamps(folder: Path, names: list[str]) -> dict[str, tuple[int, int, int] | None]:
+    """(inode, size, mtime ns) of each of ``names`` in ``folder``; None for one that is gone."""
+    stamps = {}
+    for name in names:
+        try:
+            st = os.stat(folder / name)
+            stamps[name] = (st.st_ino, st.st_size, st.st_mtime_ns)
+        except OSError:
+            stamps[name] = None
+    return stamps

@@ -293,11 +293,13 @@ def write_index(
     reference: str,
     made_by: str | None = None,
     capture: dict | None = None,
+    reference_files: dict | None = None,
 ) -> Path:
     """index.json: written last, so its presence marks a usable dataset. ``made_by``: :data:`EXPERIMENT_MAKER` for
     an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew. ``capture``:
     the capture settings its presses share (``core.sensor_record.common_settings``), which a model trained on it
-    keeps; None when unknown."""
+    keeps; None when unknown. ``reference_files``: the undeformed capture's files as the build read them
+    (core.press_checksums.files_as_read), which ``nlips train`` compares with the capture's files now."""
     index = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -309,6 +311,8 @@ def write_index(
         "sample_rules": dict(SAMPLE_RULES),
         "presses": entries,
     }
+    if reference_files is not None:
+        index["reference_files"] = reference_files
     return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
 
 
@@ -375,7 +379,8 @@ def build_dataset(
     samples holds ``out``.
     """
     from ..core.capture import load_press
-    from ..core.press_meta import read_meta
+    from ..core.press_checksums import files_as_read
+    from ..core.press_meta import listed_files, read_meta
 
     cfg = cfg or SamplingConfig()
     out = Path(out)
@@ -384,6 +389,7 @@ def build_dataset(
     with said_once.scope(), hold_dataset(out, run):  # a session's brightness warned of once per build
         (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
         _clean_interrupted(out)
+        reference_files = files_as_read(reference_folder, listed_files(read_meta(reference_folder)))
         ref_press = load_press(reference_folder)
         check_min_leds(cfg, len(ref_press.leds), reference_folder)
         build = _Build(out, cfg, result_dir, sensor_of(ref_press), reference_arrays(ref_press), failed=failed)
@@ -403,7 +409,8 @@ def build_dataset(
                 shown,
             )
         capture = common_settings([capture_settings(read_meta(folder)) for folder in folders])  # the presses' alike
-        write_index(out, build.sensor, cfg, entries, str(Path(reference_folder).resolve()), capture=capture)
+        reference = str(Path(reference_folder).resolve())
+        write_index(out, build.sensor, cfg, entries, reference, capture=capture, reference_files=reference_files)
     return out
 
 
@@ -506,6 +513,10 @@ class _Build:
         check_sensor(self.sensor, sensor_of(press), folder)
         if why := response_mismatch(self.sensor, sensor_of(press), "the reference's"):
             raise CaptureError(f"{folder}: {why}")
+        from ..core.press_checksums import files_as_read
+        from ..core.press_meta import listed_files
+
+        files = files_as_read(folder, listed_files(press.meta))  # before its files are read: what they were
         rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
         samples = press_samples(press, rec, self.ref, self.cfg)
         entry = {
@@ -516,6 +527,7 @@ class _Build:
             "has_truth": bool(press.ground_truth is not None),
             "press": press_description(press),
             "stamp": stamp,
+            "files": files,
         }
         write_shard(shard, samples, entry)
         return entry
@@ -913,6 +925,37 @@ class CalibrationDataset:
             f"{path}: {why}: its samples may differ from this version's{gain if older_gain else ''}; {self.remake} to "
             "make them with this version"
         )
+
+    def changed_presses(self) -> dict[str, str]:
+        """The presses (and ``"reference"``, the undeformed capture) whose folders hold other files now than the
+        samples were made from, by name, each with one line naming the first such file and the remedy: index.json
+        records each press's files as sampled (``files``: sizes, and CRC-32s from the press's checksums.json;
+        core.press_checksums.changed_since); a dataset built before it did (2026-12-06) has each press compared with
+        its own checksums.json instead (core.press_checksums.changed_files). A press whose folder is not there (a
+        dataset copied to another machine, an experiment's deleted renders) is not compared. A stat per file.
+
+        Why: ``nlips train`` read the shards alone, so a dataset built before a press was captured or rendered again,
+        or from a press with another image copied over one, trained without a word."""
+        from ..core.press_checksums import changed_files, changed_since
+
+        changed = {}
+        ref = ("reference", self.index.get("reference"), self.index.get("reference_files"))
+        for name, folder, files in [ref, *((e["name"], e.get("folder"), e.get("files")) for e in self.entries)]:
+            if not isinstance(folder, str) or not Path(folder).is_dir():
+                continue
+            problems = changed_since(folder, files) if isinstance(files, dict) else changed_files(folder)
+            if not problems:
+                continue
+            first, problem = next(iter(problems.items()))
+            more = f" and {len(problems) - 1} more of its files" if len(problems) > 1 else ""
+            if isinstance(files, dict):
+                why = f"{problem}{more}: the dataset holds samples of the files as they were then (the press "
+                why += "captured, rendered or copied over since)"
+            else:
+                why = f"{problem}{more}; {self.folder} was built before datasets recorded their presses' files, so it "
+                why += "may hold samples of the changed file: copy, capture or render the press again and"
+            changed[name] = f"{Path(folder) / first}: {why}; {self.remake} to sample it anew"
+        return changed
 
     def entry(self, name: str) -> dict:
         for e in self.entries:
