@@ -180,12 +180,15 @@ def test_a_twin_capture_with_two_led_images_exchanged_is_refused_naming_them(twi
     line as a warning. The clean captures of the fixture and the other tests calibrate without it."""
     import shutil
 
+    from tests.solver.twin_helpers import recorded_anew
+
     root, first = twin_captures
     swapped = tmp_path / "swapped"
     shutil.copytree(root / "seed7", swapped)
     (swapped / "led_03.png").rename(swapped / "x.png")
     (swapped / "led_04.png").rename(swapped / "led_03.png")
     (swapped / "x.png").rename(swapped / "led_04.png")
+    recorded_anew(swapped)  # as the capture with the wiring exchanged would have recorded it
     out = tmp_path / "leds.json"
     capsys.readouterr()
     assert main(["--no-progress", "calibrate-leds", str(swapped), "--out", str(out)]) == 2

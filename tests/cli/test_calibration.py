@@ -80,12 +80,14 @@ def test_presses_of_another_dome_than_the_reference_are_one_line_naming_the_surf
     undeformed surfaces are compared first, as `nlips solve --reference` compares them."""
     from nlipscalib.core import load_press
     from nlipscalib.core.capture import Reference
+    from tests.solver.twin_helpers import recorded_anew
 
     root = tmp_path / "presses"
     synth.make_press(root / "reference", "none", size=SIZE)
     press = synth.make_press(root / "press_0001", "sphere", size=SIZE)
     ref = Reference.load(press / "reference.npz", load_press(press).camera.shape)
     Reference(depth=ref.depth * 1.05, normals=ref.normals).save(press / "reference.npz")  # a dome 5 % larger
+    recorded_anew(press)  # captured so: its record holds that file
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1, err

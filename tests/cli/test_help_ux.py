@@ -148,6 +148,7 @@ def test_every_command_takes_verbose_log_file_and_no_progress_after_it_too(name,
         "export": ["m.pt"],
         "render": ["--out", "o"],
         "infer": ["m.pt"],
+        "verify": ["p"],
     }
     rest = required.get(name, positionals.get(name, []))
     after = parser.parse_args([name, *rest, "-v", "--log-file", str(tmp_path / "log"), "--no-progress"])

@@ -54,4 +54,14 @@ def dimmed_copy(press, folder, gain):
     for name, led_gain in zip(images["leds"], np.broadcast_to(gain, len(images["leds"])), strict=True):
         lit = read_png16(folder / name).astype(float) - dark
         write_png16(folder / name, np.clip(np.rint(dark + led_gain * lit), 0, 65535).astype(np.uint16))
+    recorded_anew(folder)
     return load_press(folder)
+
+
+def recorded_anew(folder):
+    """``folder``'s checksums.json written for its files as they are now: a press edited by a test to stand for one
+    captured so (aged LEDs, exchanged images), which its capture would have recorded as such."""
+    from nlipscalib.core.press_checksums import write_checksums
+    from nlipscalib.core.press_meta import listed_files, read_meta
+
+    write_checksums(folder, listed_files(read_meta(folder)))

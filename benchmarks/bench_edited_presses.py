@@ -1,0 +1,118 @@
+"""What the readers' comparison of a press with its checksums.json costs (core.press_checksums.check_unchanged, and
+``nlips train``'s CalibrationDataset.changed_presses): in process, and in whole commands against another checkout.
+
+In process: ``check_unchanged`` on the press folders given (a stat per recorded file, one JSON read a press), and
+``changed_presses`` on ``--dataset``.
+
+Whole commands (``--cmd``, repeated for several): the process wall and user+sys CPU of ``nlips CMD`` run from this
+checkout and from ``--against`` (``git worktree add --detach DIR REV``), alternating, ``--pairs`` times after one
+warm-up each. ``{side}`` in a command is replaced by ``now`` or ``before`` (each side its own folder where the
+command writes). Every process runs with its own ``PYTHONPATH``, bytecode cache and ``NLIPS_CACHE_DIR``, without
+``PYTHONDONTWRITEBYTECODE``.
+
+Run: .venv/bin/python benchmarks/bench_edited_presses.py [PRESS...] [--dataset CALIB] [--repeats 9]
+     [--cmd "solve /tmp/x-{side}/sphere1 --roi auto --overwrite" --against CHECKOUT --pairs 7]
+Prints Markdown tables; the results are in benchmarks/RESULTS.md (s34-checksums).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _ms(fn, repeats: int) -> str:
+    """Median [min-max] of ``fn()`` in ms over ``repeats`` runs after one warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    return f"{statistics.median(times):.3f} [{min(times):.3f}-{max(times):.3f}]"
+
+
+def in_process(presses: list[Path], dataset: Path | None, repeats: int) -> None:
+    from nlipscalib.core.press_checksums import check_unchanged
+
+    print("| what | ms (median [range]) |\n|---|---|")
+    if presses:
+        print(f"| check_unchanged, {len(presses)} press folder(s) | {_ms(lambda: check_unchanged(presses), repeats)} |")
+    if dataset is not None:
+        from nlipscalib.learn.dataset import CalibrationDataset
+
+        data = CalibrationDataset(dataset)
+        label = f"changed_presses, {len(data.entries)} presses + reference"
+        print(f"| {label} | {_ms(data.changed_presses, repeats)} |")
+
+
+def _command(checkout: Path, command: str, side: str) -> tuple[float, float, int]:
+    """(wall s, user+sys s, exit status) of one ``nlips`` process run from ``checkout``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(
+        PYTHONPATH=str(checkout),
+        PYTHONPYCACHEPREFIX=f"/tmp/bench-edited-pyc-{side}",
+        NLIPS_CACHE_DIR=f"/tmp/bench-edited-cache-{side}",
+    )
+    argv = [sys.executable, "-m", "nlipscalib", *shlex.split(command.replace("{side}", side)), "--no-progress"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    rc = subprocess.run(
+        argv, cwd=tempfile.gettempdir(), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    ).returncode
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, rc
+
+
+def interleaved(commands: list[str], against: Path, pairs: int) -> None:
+    sides = [("now", ROOT), ("before", against)]
+    for command in commands:
+        times = {side: [] for side, _ in sides}
+        for side, checkout in sides:  # warm-up: bytecode caches, the page cache, the disk cache
+            _command(checkout, command, side)
+        for _ in range(pairs):
+            for side, checkout in sides:
+                wall, cpu, rc = _command(checkout, command, side)
+                if rc != 0:
+                    raise SystemExit(f"{side}: nlips {command}: exit {rc}")
+                times[side].append((wall, cpu))
+        print(f"\n`nlips {command}` (n={pairs}, interleaved)\n\n| side | wall s | user+sys s |\n|---|---|---|")
+        for side, runs in times.items():
+            walls, cpus = [w for w, _ in runs], [c for _, c in runs]
+            print(
+                f"| {side} | {statistics.median(walls):.3f} [{min(walls):.3f}-{max(walls):.3f}] | "
+                f"{statistics.median(cpus):.3f} [{min(cpus):.3f}-{max(cpus):.3f}] |"
+            )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("presses", nargs="*", type=Path, help="press folders for check_unchanged")
+    parser.add_argument("--dataset", type=Path, help="a calibration dataset for changed_presses")
+    parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--cmd", action="append", default=[], help="an nlips command line ({side}: now / before)")
+    parser.add_argument("--against", type=Path, help="the other checkout")
+    parser.add_argument("--pairs", type=int, default=7)
+    args = parser.parse_args()
+    print(f"load average before: {os.getloadavg()}")
+    if args.presses or args.dataset:
+        in_process(args.presses, args.dataset, args.repeats)
+    if args.cmd:
+        interleaved(args.cmd, args.against, args.pairs)
+    print(f"load average after: {os.getloadavg()}")
+
+
+if __name__ == "__main__":
+    main()
