@@ -17,6 +17,7 @@ from nlipscalib.solver.exposure import dark_frame_fault, saturated_share
 from nlipscalib.solver.indirect import fit_indirect
 
 from . import synth
+from .twin_helpers import recorded_anew
 
 SIZE = (64, 48)
 
@@ -135,6 +136,7 @@ def test_a_dark_frame_that_holds_light_is_refused_and_one_below_the_black_level_
 
     lit = synth.make_press(tmp_path / "lit", "sphere")
     write_png16(lit / "dark.png", read_png16(lit / "led_01.png"))
+    recorded_anew(lit)  # saved so by its capture: recorded as such (a copy over it later is refused before this)
     assert main(["solve", str(lit), "--roi", "auto", "--no-figures"]) == 2
     err = capsys.readouterr().err
     assert "dark.png: not a dark frame" in err and "Traceback" not in err
@@ -187,6 +189,7 @@ def test_a_gamma_encoded_dark_frame_above_the_black_level_is_put_down_to_the_ton
         folder = synth.make_press(tmp_path / name, "none", lin_hook=hook)
         dark = synth.to_stored(np.full(read_png16(folder / "dark.png").shape, _srgb(offset)))
         write_png16(folder / "dark.png", dark)
+        recorded_anew(folder)  # captured so
         return folder
 
     encoded = with_dark("srgb", lambda lin: _srgb(lin + offset))
