@@ -950,11 +950,12 @@ class CalibrationDataset:
             more = f" and {len(problems) - 1} more of its files" if len(problems) > 1 else ""
             if isinstance(files, dict):
                 why = f"{problem}{more}: the dataset holds samples of the files as they were then (the press "
-                why += "captured, rendered or copied over since)"
+                why += f"captured, rendered or copied over since); {self.remake} to sample it anew"
             else:
-                why = f"{problem}{more}; {self.folder} was built before datasets recorded their presses' files, so it "
-                why += "may hold samples of the changed file: copy, capture or render the press again and"
-            changed[name] = f"{Path(folder) / first}: {why}; {self.remake} to sample it anew"
+                why = f"{problem}{more}; {self.folder} was built before datasets recorded their presses' files, so "
+                why += "it may hold samples of the changed file: copy, capture or render the press again, then "
+                why += self.remake
+            changed[name] = f"{Path(folder) / first}: {why}"
         return changed
 
     def entry(self, name: str) -> dict:
