@@ -9,8 +9,8 @@ Each press's stored tri-colour frame is predicted once; then:
   in use lies from the frame's own (75th percentile, ``core.steepness``), its age in frames, the contacts measured;
 - ``noise``: the press held with fresh noise each frame (the frame's own noise level added again, 6 draws cycled over
   60 frames): the contacts measured and how far ``contact_bend`` wanders;
-- ``cost``: process CPU per call (median of 200) of ``contact_extent``, ``contact_bend`` at steps 1, 2, 4 and the
-  measure (``judge_steepness``).
+- ``cost``: process CPU per call (median of 200) of ``contact_extent``, ``contact_bend`` at steps 1, 2, 4 and
+  ``bend_step``'s, and the measure (``judge_steepness``).
 
 The package is PYTHONPATH's, so an older tree's ``stale`` and ``noise`` run too (``cost`` needs ``contact_bend``)::
 
@@ -89,8 +89,10 @@ def noise(predictor, name: str, image: np.ndarray, reference_image: np.ndarray) 
     if hasattr(resolution, "contact_bend"):
         ref = predictor.ref_normals
         extents = [resolution.contact_extent(d.changed) for d in draws]
-        bends = [resolution.contact_bend(d.changed, d.normals, ref, e) for d, e in zip(draws, extents)]
-        line += f"; contact_bend {min(bends):.1f}-{max(bends):.1f} ({100 * np.ptp(bends) / np.median(bends):.2f} %)"
+        step = resolution.bend_step(extents[0])
+        bends = [resolution.contact_bend(d.changed, d.normals, ref, e, step) for d, e in zip(draws, extents)]
+        spread = 100 * np.ptp(bends) / np.median(bends)
+        line += f"; contact_bend at step {step} {min(bends):.1f}-{max(bends):.1f} ({spread:.2f} %)"
     print(line, flush=True)
 
 
@@ -104,17 +106,13 @@ def _cpu_ms(call, n: int = 200) -> float:
 
 
 def cost(predictor, name: str, frame) -> None:
-    from nlipscalib.core import tolerances
     from nlipscalib.learn import resolution
 
     ref, extent = predictor.ref_normals, resolution.contact_extent(frame.changed)
     row = [f"contact_extent {_cpu_ms(lambda: resolution.contact_extent(frame.changed)):.3f}"]
-    kept = tolerances.STREAM_TILT_STEP
-    for step in (1, 2, 4):
-        tolerances.STREAM_TILT_STEP = step
-        spent = _cpu_ms(lambda: resolution.contact_bend(frame.changed, frame.normals, ref, extent))
-        row.append(f"bend step {step} {spent:.3f}")
-    tolerances.STREAM_TILT_STEP = kept
+    for step in sorted({1, 2, 4, resolution.bend_step(extent)}):
+        spent = _cpu_ms(lambda step=step: resolution.contact_bend(frame.changed, frame.normals, ref, extent, step))
+        row.append(f"bend step {step}{' (bend_step)' if step == resolution.bend_step(extent) else ''} {spent:.3f}")
     measure = _cpu_ms(lambda: resolution.judge_steepness(frame.changed, frame.normals, ref, 0.1, extent), 50)
     print(f"{name} ms of CPU a call: {'; '.join(row)}; measure {measure:.3f}", flush=True)
 

@@ -5,6 +5,7 @@ import dataclasses
 import logging
 
 import numpy as np
+import pytest
 
 from nlipscalib.core.tolerances import FRAME_MISMATCH_FRACTION
 from nlipscalib.learn.infer import Frame
@@ -216,13 +217,16 @@ class _SteepeningPredictor(_PressPredictor):
         return dataclasses.replace(found, normals=tilted)
 
 
-def test_a_press_that_steepens_in_place_is_judged_again_at_once():
+@pytest.mark.parametrize("samples", [1000, 50])  # every pixel of the small dent; every 2nd row and column
+def test_a_press_that_steepens_in_place_is_judged_again_at_once(monkeypatch, samples):
     """A press whose normals steepen while its changed pixels keep their count and place kept the last verdict for
     up to ``STREAM_REJUDGE_FRAMES`` frames (30: a second at 30 frames/s): a shallow press turned steep went unwarned
     all that while. Its normals' turn (``contact_bend``) now tells: measured again on its first frame past 3 %,
     and each frame gets the verdict the still-frame check gives; a press held at its tilt is still measured once."""
-    from nlipscalib.learn.resolution import StreamSteepness, frame_warning
+    from nlipscalib.core import tolerances
+    from nlipscalib.learn.resolution import StreamSteepness, bend_step, contact_extent, frame_warning
 
+    monkeypatch.setattr(tolerances, "STREAM_TILT_SAMPLES", samples)
     predictor = _SteepeningPredictor()
     check = StreamSteepness(predictor)
 
@@ -233,6 +237,7 @@ def test_a_press_that_steepens_in_place_is_judged_again_at_once():
 
     frames = [press(s) for s in (0.05, 0.05, 0.05, 1.0, 1.0, 1.0, 0.05)]
     assert len({int(f.changed.sum()) for f in frames}) == 1  # the same pixels: only the normals tell
+    assert bend_step(contact_extent(frames[0].changed)) == (1 if samples == 1000 else 2)
     said = [check(f, f"f{i}") for i, f in enumerate(frames)]
     assert said == [frame_warning(predictor, f, f"f{i}") for i, f in enumerate(frames)]
     assert [bool(s) for s in said] == [False, False, False, True, True, True, False] and check.judged == 3
