@@ -8,7 +8,8 @@ Each press's stored tri-colour frame is predicted once; then:
   verdict (warned or not) differs from the still-frame check's, the longest such run, how far the tilt of the verdict
   in use lies from the frame's own (75th percentile, ``core.steepness``), its age in frames, the contacts measured;
 - ``noise``: the press held with fresh noise each frame (the frame's own noise level added again, 6 draws cycled over
-  60 frames): the contacts measured and how far ``contact_bend`` wanders;
+  60 frames): the contacts measured, the check's process CPU per frame (median of 9 streams) and how far
+  ``contact_bend`` wanders;
 - ``cost``: process CPU per call (median of 200) of ``contact_extent``, ``contact_bend`` at steps 1, 2, 4 and
   ``bend_step``'s, and the measure (``judge_steepness``).
 
@@ -82,10 +83,14 @@ def noise(predictor, name: str, image: np.ndarray, reference_image: np.ndarray) 
     for _ in range(6):
         noisy = np.clip(image + rng.normal(0, sigma, image.shape), 0, 65535).astype(np.uint16)
         draws.append(predictor.predict_stored(noisy, name))
-    check = resolution.StreamSteepness(predictor)
-    for k in range(60):
-        check(draws[k % 6], "f")
-    line = f"{name} held, noise {sigma:.0f} added: measured {check.judged} of 60"
+    spent = []
+    for _ in range(9):  # the whole check of a frame (StreamSteepness), its CPU per frame
+        check = resolution.StreamSteepness(predictor)
+        start = time.process_time()
+        for k in range(60):
+            check(draws[k % 6], "f")
+        spent.append(1e3 * (time.process_time() - start) / 60)
+    line = f"{name} held, noise {sigma:.0f} added: measured {check.judged} of 60, {np.median(spent):.3f} ms CPU/frame"
     if hasattr(resolution, "contact_bend"):
         ref = predictor.ref_normals
         extents = [resolution.contact_extent(d.changed) for d in draws]
