@@ -12,9 +12,11 @@ per channel), scaled by the scene's exposure and passed through the scene's sens
 draw per frame, as a real sensor gives.
 
 Like a real UVC camera, the virtual camera delivers frames with a delay (``latency_frames``): a frame
-read right after an LED change still shows the old light, so a session that does not flush fails. Like a webcam
-that cannot turn its gamma off, it may encode its frames with a tone curve (:data:`EMULATED_TONE_CURVES`), and its
-exposure may be stepped (:attr:`EmulatedCamera.exposure_scale`: ``nlips calibrate-camera-response``'s bracket).
+read right after an LED change still shows the old light, so a session that does not flush fails; a stream's
+scripted presses are put in front of it in its own time (:class:`ScriptedStream`), so each shows in its own frames.
+Like a webcam that cannot turn its gamma off, it may encode its frames with a tone curve
+(:data:`EMULATED_TONE_CURVES`), and its exposure may be stepped (:attr:`EmulatedCamera.exposure_scale`:
+``nlips calibrate-camera-response``'s bracket).
 """
 
 from __future__ import annotations
