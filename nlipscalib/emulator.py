@@ -12,9 +12,11 @@ per channel), scaled by the scene's exposure and passed through the scene's sens
 draw per frame, as a real sensor gives.
 
 Like a real UVC camera, the virtual camera delivers frames with a delay (``latency_frames``): a frame
-read right after an LED change still shows the old light, so a session that does not flush fails. Like a webcam
-that cannot turn its gamma off, it may encode its frames with a tone curve (:data:`EMULATED_TONE_CURVES`), and its
-exposure may be stepped (:attr:`EmulatedCamera.exposure_scale`: ``nlips calibrate-camera-response``'s bracket).
+read right after an LED change still shows the old light, so a session that does not flush fails; a stream's
+scripted presses are put in front of it in its own time (:class:`ScriptedStream`), so each shows in its own frames.
+Like a webcam that cannot turn its gamma off, it may encode its frames with a tone curve
+(:data:`EMULATED_TONE_CURVES`), and its exposure may be stepped (:attr:`EmulatedCamera.exposure_scale`:
+``nlips calibrate-camera-response``'s bracket).
 """
 
 from __future__ import annotations
@@ -317,6 +319,57 @@ class ScriptedOperator(Operator):
         if not 1 <= index <= len(self.script):
             raise ConfigError(f"the press script has {len(self.script)} presses; press {index} was asked for")
         return self.script[index - 1]
+
+
+class ScriptedStream:
+    """The emulated stream's person (``nlips live/infer --emulate``): each surface in front of the camera for
+    ``frames_per_press`` frames, in the frames the stream reads, the first press's first frame included.
+
+    Why ahead of the reads: the camera delivers each frame :attr:`EmulatedCamera.latency_frames` reads after it was
+    exposed (a UVC camera's buffer, modelled on purpose: a capture session that does not flush after an LED change
+    fails). Changing the gel right before each read, as the stream did, showed every press first in the frame after
+    its first (``--frames-per-press 1``: each frame the press before, the last press never). A real person presses
+    in the camera's time, not the reads': here each surface is put in front of the camera as the frame that will
+    be delivered as its frame is exposed, and the camera is run that many frames before the stream (a real camera
+    streams from its opening: its first frame delivered was exposed before the stream's first read). Nothing is to
+    flush on the stream's side: the tri-colour LEDs never change during it, and a real camera's frames of a moving
+    press are late by its latency whatever the consumer does (fewer buffers: ``CameraSettings.buffer_size``).
+
+    Parameters
+    ----------
+    camera : the emulated camera, its LEDs lit already
+    surfaces : what the gel shows, in order (None: the undeformed dome)
+    frames_per_press : frames each surface is shown for
+    loop : start again after the last surface (a window shows the stream); else the stream ends after it
+        (:class:`~nlipscalib.device.live.StopLive` from the call of the frame past it), as a recording does
+    """
+
+    def __init__(
+        self, camera: EmulatedCamera, surfaces: list[PressConfig | None], frames_per_press: int, loop: bool
+    ) -> None:
+        self.camera, self.surfaces, self.frames_per_press, self.loop = camera, surfaces, frames_per_press, loop
+        self.frames = len(surfaces) * frames_per_press
+        """Frames of the script once."""
+        for exposed in range(camera.latency_frames):  # the frames exposed before the stream's first read
+            camera.show(self._surface(exposed))
+            camera.read()
+
+    def _surface(self, exposed: int) -> PressConfig | None:
+        """The surface in front of the camera at its read ``exposed`` (counted from the warm-up's first): the one
+        the stream's frame ``exposed`` shows, delivered ``latency_frames`` reads later (the last surface held past
+        the script's end, as a person holds a press until the recording stops)."""
+        if not self.loop:
+            exposed = min(exposed, self.frames - 1)
+        return self.surfaces[(exposed // self.frames_per_press) % len(self.surfaces)]
+
+    def __call__(self, frame: int) -> None:
+        """Before the stream reads its frame ``frame`` (``device.live.stream``'s ``before_frame``)."""
+        from .device.live import StopLive
+
+        if not self.loop and frame >= self.frames:
+            raise StopLive  # the script was streamed once: the input ended
+        # the frame read now delivers the exposure latency_frames reads ago; the one exposed now is delivered then
+        self.camera.show(self._surface(frame + self.camera.latency_frames))
 
 
 def tricolor_level(renders: TwinRenders) -> int:

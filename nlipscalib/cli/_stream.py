@@ -273,6 +273,11 @@ def open_frames(
         controller = stack.enter_context(open_leds(args.port, args.adalight, args.baud))
         # dark again when the stream ends (its end, q, Ctrl-C, SIGTERM, an error): nothing drives them afterwards
         _light_tricolor(stack.enter_context(lights_out_on_exit(controller)), args.tricolor_level)
+    if getattr(source, "live", False):
+        # a camera's first frames are stale: the one grabbed at opening (OpenCVSource's probe) and the driver's
+        # buffered one show the LEDs before the tri-colour pattern was lit (dark: "a frame unlike the calibration's
+        # reference") or the gel seconds ago; dropped once here, never during the stream (the LEDs stay lit)
+        source.flush()
     return source, None
 
 
@@ -394,8 +399,7 @@ def refreshed_reference(predictor: Predictor, path: str | Path) -> np.ndarray:
 def _emulated_source(
     args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool
 ) -> tuple[EmulatedCamera, Callable[[int], None]]:
-    from ..device.live import StopLive
-    from ..emulator import EmulatedCamera, TwinRenders, default_script, load_script, tricolor_level
+    from ..emulator import EmulatedCamera, ScriptedStream, TwinRenders, default_script, load_script, tricolor_level
     from ..sim.scene import load_scene
 
     scene = load_scene(args.emulate)
@@ -419,12 +423,7 @@ def _emulated_source(
     for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
         renders.images(surface)
 
-    def before_frame(i: int) -> None:
-        if not loop and i >= len(surfaces) * args.frames_per_press:
-            raise StopLive  # the script was streamed once: the input ended
-        camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
-
-    return camera, before_frame
+    return camera, ScriptedStream(camera, surfaces, args.frames_per_press, loop)
 
 
 class SigtermEndsStream:

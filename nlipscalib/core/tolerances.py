@@ -182,9 +182,23 @@ its changed pixels number within this fraction of that frame's and their centroi
 frame's equivalent diameter (at least a pixel) of that frame's: the same press held. Why: the measure costs 2-4.5 ms
 of host CPU per pressed 640x480 frame, and a held press's frames differ by the sensor's noise only (sphere1 with its
 noise doubled: pixels within 0.5 %, centroid within 0.4 px; benchmarks/RESULTS.md, s29-watchcost)."""
+STREAM_TILT_CHANGE = 0.03
+"""... and when its contact's normals turn (``learn.resolution.contact_bend``: the sum of 1 - cos(tilt) over about
+:data:`STREAM_TILT_SAMPLES` of its pixels) within this fraction of that frame's: a press that steepens or flattens
+in place, its changed pixels kept, is measured again on its first frame past it (it kept the last verdict for up to
+:data:`STREAM_REJUDGE_FRAMES` frames: sphere1's normals steepened 2 % a frame went unwarned 28 frames after the
+still-frame check warned). A held press's sum wanders 0.27-0.35 % with its noise added again (sphere1, cube1, coin1
+at 640x480: a tenth of this); benchmarks/RESULTS.md, s34-live."""
+STREAM_TILT_SAMPLES = 1000
+"""Pixels of a contact :data:`STREAM_TILT_CHANGE` samples, about: every k-th row and column of its box with k the
+square root of its pixels over this (``learn.resolution.bend_step``, chosen when the contact is measured; every
+pixel of a contact under 4 times this), so that a held press costs about the same whatever its size: 0.013-0.014 ms
+of CPU a frame for sphere1, cube1 and coin1 at 640x480 (steps 5-8; every pixel 0.13-0.28 ms, the measure 1.3-2.7
+ms), their sums wandering 0.27-0.35 % with the frames' noise added again (benchmarks/bench_stream_rejudge.py,
+s34-live)."""
 STREAM_REJUDGE_FRAMES = 30
-"""... for at most this many frames in a row, then measured again (a second at 30 frames/s): a press whose normals
-steepen while its changed region stays put is not judged once for the whole stream."""
+"""... for at most this many frames in a row, then measured again (a second at 30 frames/s): a change neither the
+changed pixels nor the tilt tell (a steep spot inside a press held still) is not judged once for the whole stream."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says

@@ -1,6 +1,7 @@
 """The emulated camera: frames follow the latched LEDs with a camera's delay; flushing hides the delay."""
 
 import numpy as np
+import pytest
 
 from nlipscalib.emulator import EmulatedCamera
 from nlipscalib.sim.scene import SceneConfig
@@ -154,3 +155,37 @@ def test_emulated_frames_pass_through_the_scenes_lens_and_camera_effects_as_the_
     assert np.array_equal(cam.capture(), dark)
     board.set_all(np.tile([[255, 255, 255]], (12, 1)) * (np.arange(12) == 4)[:, None])
     assert np.array_equal(cam.capture(), leds[4])
+
+
+class ScriptRenders(StubRenders):
+    """As StubRenders, each scripted surface (a number) scaling the light by its own factor: a frame tells which
+    surface it shows."""
+
+    def images(self, surface):
+        return self.stack * (1.0 if surface is None else 1.0 + surface)
+
+
+@pytest.mark.parametrize("latency", [1, 2])
+@pytest.mark.parametrize("per_press", [1, 3])
+def test_the_emulated_stream_shows_each_press_in_its_own_frames_the_last_one_included(latency, per_press):
+    """`nlips live/infer --emulate`: the stream changed the gel right before each read while the camera delivers a
+    frame one read late, so each press's first frame showed the press before and, with --frames-per-press 1, the
+    last press was never shown. Frame i now shows surface i // per_press, whatever the camera's latency, and the
+    script once is all the stream gives."""
+    from nlipscalib.device.live import StopLive
+    from nlipscalib.emulator import ScriptedStream
+
+    scene = SceneConfig().replace(camera={"width": 10, "height": 8}, noise={"enabled": False})
+    board = FakeController(12)
+    board.set_all(np.tile([[255, 255, 255]], (12, 1)) * (np.arange(12) == 4)[:, None])  # LED 5: level 0.05
+    cam = EmulatedCamera(ScriptRenders(scene, 12), lambda: board.latched, latency_frames=latency)
+    surfaces = [None, 1, 2, 3]
+    before_frame = ScriptedStream(cam, surfaces, per_press, loop=False)
+    response = scene.noise.response()
+    shown = []
+    for frame in range(len(surfaces) * per_press):
+        before_frame(frame)
+        shown.append(round(_level(cam.read(), response) / 0.05 - 1.0, 2))
+    assert shown == [float(s or 0) for s in surfaces for _ in range(per_press)]
+    with pytest.raises(StopLive):
+        before_frame(len(surfaces) * per_press)

@@ -7,7 +7,7 @@ cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core.errors import CaptureError  # noqa: E402
-from nlipscalib.device.camera import FolderSource, SequenceSource  # noqa: E402
+from nlipscalib.device.camera import FolderSource, FrameSource, SequenceSource  # noqa: E402
 from nlipscalib.device.live import ReadAhead, StopLive, stream  # noqa: E402
 
 from .fakes import flat_predictor  # noqa: E402
@@ -517,3 +517,44 @@ def test_a_second_stream_into_the_folder_a_live_stream_saves_into_is_refused(fra
     killed.write_text(json.dumps({"host": HOST, "pid": _dead_pid(), "token": "k9"}), encoding="utf-8")
     assert main([*live, "--predictor", "tests.device.fakes:flat_predictor"]) == 0
     assert "saved: 5 of 5 frames" in capsys.readouterr().err and not killed.exists()
+
+
+class _BufferedCamera(FrameSource):
+    """A live camera (``live``) looking at a LED board: each frame's green value is the board's latched green sum,
+    delivered two reads late (the frame grabbed at opening and the driver's buffered one), as a webcam's."""
+
+    live = True
+    flush_frames = 2
+
+    def __init__(self, board):
+        self.board = board
+        self.pipeline = [self._exposed(), self._exposed()]  # exposed at opening: the LEDs not lit yet
+
+    @property
+    def shape(self):
+        return (12, 16)
+
+    def _exposed(self):
+        return np.full((12, 16, 3), 10 * int(self.board.latched[:, 1].sum()), np.uint16)
+
+    def read(self):
+        self.pipeline.append(self._exposed())
+        return self.pipeline.pop(0)
+
+
+def test_a_live_cameras_stale_frames_from_before_the_leds_were_lit_are_not_streamed(tmp_path, monkeypatch, capsys):
+    """`nlips live --camera 0 --port URL` (`nlips infer` too: the same cli._stream.open_frames) lit the tri-colour
+    LEDs after opening the camera and streamed its first frames as they came: the frame grabbed at opening and the
+    driver's buffered one, both exposed before the LEDs were lit (dark frames: the mismatch warning at frame 0 of
+    every stream). They are flushed once."""
+    from nlipscalib.device import camera
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(12)
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings, tone_curve=None: _BufferedCamera(board))
+    maps = tmp_path / "maps"
+    args = ["live", "--camera", "0", "--port", board.url, "--predictor", "tests.device.fakes:flat_predictor"]
+    args += ["--no-window", "--max-frames", "3", "--save", str(maps)]
+    assert main(args) == 0, capsys.readouterr().err
+    depth = [float(np.load(f)["depth"].mean()) for f in sorted(maps.glob("frame_*.npz"))]
+    assert len(depth) == 3 and min(depth) > 0, depth  # every frame lit

@@ -5,6 +5,7 @@ import dataclasses
 import logging
 
 import numpy as np
+import pytest
 
 from nlipscalib.core.tolerances import FRAME_MISMATCH_FRACTION
 from nlipscalib.learn.infer import Frame
@@ -201,3 +202,42 @@ def test_a_noise_speck_far_from_a_held_press_does_not_make_it_judged_again():
     for changed in (held.changed, speck, held.changed):
         check(dataclasses.replace(held, changed=changed), "f")
     assert check.judged == 1
+
+
+class _SteepeningPredictor(_PressPredictor):
+    """As _PressPredictor, the dent's normals tilted ``frame[0, 1, 0]`` times the sphere's (0.05: shallow, not
+    warned; 1: ~4 deg/px, warned), its changed pixels the same whatever the tilt."""
+
+    def predict_stored(self, frame: np.ndarray, where: str, in_light: bool = False) -> Frame:
+        found = super().predict_stored(frame, where)
+        scale = float(frame[0, 1, 0])
+        tilted = found.normals.copy()
+        tilted[found.changed, :2] *= scale
+        tilted[found.changed] /= np.linalg.norm(tilted[found.changed], axis=-1, keepdims=True)
+        return dataclasses.replace(found, normals=tilted)
+
+
+@pytest.mark.parametrize("samples", [1000, 50])  # every pixel of the small dent; every 2nd row and column
+def test_a_press_that_steepens_in_place_is_judged_again_at_once(monkeypatch, samples):
+    """A press whose normals steepen while its changed pixels keep their count and place kept the last verdict for
+    up to ``STREAM_REJUDGE_FRAMES`` frames (30: a second at 30 frames/s): a shallow press turned steep went unwarned
+    all that while. Its normals' turn (``contact_bend``) now tells: measured again on its first frame past 3 %,
+    and each frame gets the verdict the still-frame check gives; a press held at its tilt is still measured once."""
+    from nlipscalib.core import tolerances
+    from nlipscalib.learn.resolution import StreamSteepness, bend_step, contact_extent, frame_warning
+
+    monkeypatch.setattr(tolerances, "STREAM_TILT_SAMPLES", samples)
+    predictor = _SteepeningPredictor()
+    check = StreamSteepness(predictor)
+
+    def press(scale):
+        frame = _press(40, 30, 10)
+        frame[0, 1, 0] = scale
+        return predictor.predict_stored(frame, "f")
+
+    frames = [press(s) for s in (0.05, 0.05, 0.05, 1.0, 1.0, 1.0, 0.05)]
+    assert len({int(f.changed.sum()) for f in frames}) == 1  # the same pixels: only the normals tell
+    assert bend_step(contact_extent(frames[0].changed)) == (1 if samples == 1000 else 2)
+    said = [check(f, f"f{i}") for i, f in enumerate(frames)]
+    assert said == [frame_warning(predictor, f, f"f{i}") for i, f in enumerate(frames)]
+    assert [bool(s) for s in said] == [False, False, False, True, True, True, False] and check.judged == 3
