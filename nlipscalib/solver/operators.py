@@ -94,7 +94,8 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
         "has_grad": has_grad,
         "lap": lap,
         "second": second,
-        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed),
+        # a level's own mask: its assemblies by the grid's diagonals (geometry.NormalMatrix), unless by the fixed map
+        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed, grid=None if fixed else mk),
     }
 
 
