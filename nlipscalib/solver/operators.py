@@ -4,8 +4,8 @@ unit normals of a log-depth through them, by pixel blocks on the thread pool."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -68,15 +68,35 @@ def operators_ahead(lv: dict) -> None:
     if reuse.stored("operators", (reuse.digest(mk), False)):
         return
     pool = ThreadPoolExecutor(1, "nlips-operators")
-    lv["ops_ahead"] = pool.submit(_make_operators, mk)
-    pool.shutdown(wait=False)  # its one task runs on; its thread ends with it
+    # the assembler after them, on the same thread: the level's bringing up waits for its difference operators alone
+    normal = _NormalAhead()
+    lv["ops_ahead"] = operators = pool.submit(lambda: {**_make_operators(mk, normal=False), "normal": normal})
+    normal.future = pool.submit(lambda: _normal_matrix(operators.result(), mk))  # before any assembly can ask
+    pool.shutdown(wait=False)  # its tasks run on; its thread ends with them
 
 
-def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
+class _NormalAhead:
+    """A level's normal-matrix assembler still being made on its operators' thread (:func:`operators_ahead`): its
+    first assembly waits for it.
+
+    Why: the grid stencil's build (:class:`nlipscalib.solver.geometry.NormalMatrix`, ``grid``) is ~45 ms of many
+    short NumPy calls, each waiting for the GIL while the coarse levels' Python runs on the main thread: the cube
+    press's first pass then waited 40-480 ms at its bringing up for operators it does not use
+    (benchmarks/RESULTS.md, s34-cubef32). Its first assembly comes passes later."""
+
+    def __init__(self) -> None:
+        self.future: Future | None = None
+        """The assembler's making, set by :func:`operators_ahead` once submitted."""
+
+    def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()):
+        """:meth:`nlipscalib.solver.geometry.NormalMatrix.assemble` of the assembler once made."""
+        return self.future.result().assemble(M, weights)
+
+
+def _make_operators(mk: np.ndarray, fixed: bool = False, normal: bool = True) -> dict:
     """Difference operators of a level's mask and its normal-matrix assembler (``fixed``: with the
-    fixed-pattern map, :class:`nlipscalib.solver.geometry.NormalMatrix`)."""
-    import scipy.sparse as sp
-
+    fixed-pattern map, :class:`nlipscalib.solver.geometry.NormalMatrix`; ``normal`` False: without it, for
+    :func:`operators_ahead`)."""
     forward = geometry.difference_operators(mk)
     backward = geometry.difference_operators(mk, backward=True)
     Du, Dv, has_grad = geometry.gradient_operators(mk, forward, backward)
@@ -85,18 +105,21 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
     # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
     second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
     lap = (second[0].T @ second[0] + second[1].T @ second[1]).tocsr()
-    eye = sp.identity(Du.shape[0], format="csr")
     # Central differences: one-sided ones put the normal half a pixel off the data and bias the
     # fit by about a degree on this lens.
-    return {
-        "Du": Du,
-        "Dv": Dv,
-        "has_grad": has_grad,
-        "lap": lap,
-        "second": second,
-        # a level's own mask: its assemblies by the grid's diagonals (geometry.NormalMatrix), unless by the fixed map
-        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed, grid=None if fixed else mk),
-    }
+    ops = {"Du": Du, "Dv": Dv, "has_grad": has_grad, "lap": lap, "second": second}
+    if normal:
+        ops["normal"] = _normal_matrix(ops, mk, fixed)
+    return ops
+
+
+def _normal_matrix(ops: dict, mk: np.ndarray, fixed: bool = False) -> geometry.NormalMatrix:
+    """The normal-matrix assembler of a level's difference operators ``ops`` on its mask ``mk``: by the grid's
+    diagonals (the level's own mask), or by the fixed-pattern map (``fixed``)."""
+    import scipy.sparse as sp
+
+    eye = sp.identity(ops["Du"].shape[0], format="csr")
+    return geometry.NormalMatrix((eye, ops["Du"], ops["Dv"]), ops["second"], fixed=fixed, grid=None if fixed else mk)
 
 
 def log_depth_gradient(ops: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

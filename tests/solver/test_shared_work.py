@@ -411,6 +411,48 @@ def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_gi
         np.testing.assert_array_equal(results[1].arrays()[key], results[2].arrays()[key], err_msg=key)
 
 
+def test_a_level_made_ahead_has_its_difference_operators_before_its_assembler_and_the_same_matrix(monkeypatch):
+    """:func:`operators.operators_ahead` makes the level's normal-matrix assembler after its difference operators,
+    on the same thread: the level's operators are there while the assembler is still being made (the bringing up
+    needs no assembler), and its first assembly waits for it and gives the bits of one made in place."""
+    import threading
+
+    from nlipscalib.solver import operators
+
+    mask = np.ones((40, 50), bool)
+    mask[12:17, 20:31] = False
+    release = threading.Event()
+    make = operators._normal_matrix
+
+    def held(*args, **kwargs):
+        assert release.wait(10)  # the level's operators are asked for first: held, they would wait here
+        return make(*args, **kwargs)
+
+    monkeypatch.setattr(operators, "_normal_matrix", held)
+    before = threads.workers()
+    try:
+        threads.set_workers(2)
+        reuse.clear()
+        lv = {"mask": mask}
+        operators.operators_ahead(lv)
+        ops = operators.level_operators(lv)  # returns while the assembler is held
+        assert not release.is_set() and not ops["normal"].future.done()
+        n = int(mask.sum())
+        rng = np.random.default_rng(3)
+        M = rng.normal(size=(3, 3, n))
+        M = np.einsum("abn,cbn->acn", M, M)
+        weights = (rng.uniform(0.1, 1.0, n), 0.5)
+        release.set()
+        H = ops["normal"].assemble(M, weights)
+    finally:
+        threads.set_workers(before)
+        release.set()
+        reuse.clear()
+    expected = operators._make_operators(mask)["normal"].assemble(M, weights)
+    for name in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
+
+
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
     """:func:`coarse_to_fine._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
     cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
