@@ -494,8 +494,8 @@ class _GridStencil:
         take: no (N, diagonals) index arrays (a 640x480 level's would be ~80 MB each)."""
         L, lo = self.L, self.margin
         index = {d: j for j, d in enumerate(self.diags)}
-        full = sorted({*self.diags, *(-d for d in self.diags)})
-        upper = np.array([index[abs(d)] * L + min(d, 0) for d in full])
+        full = np.array(sorted({*self.diags, *(-d for d in self.diags)}), np.int64)
+        upper = np.array([index[abs(d)] * L + min(d, 0) for d in full], np.int64)
         span = L - 2 * lo
         shifted = np.empty((len(full), span), bool)
         for s, d in enumerate(full):
@@ -507,7 +507,7 @@ class _GridStencil:
         self.gather = rows + upper[slot]
         column = np.full(L, -1, np.int32)
         column[self.pos] = np.arange(self.n, dtype=np.int32)
-        self.indices = column[rows + np.asarray(full)[slot]]
+        self.indices = column[rows + full[slot]]
         self.indptr = np.concatenate([[0], np.cumsum(np.count_nonzero(valid, axis=1))]).astype(np.int32)
 
     def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:

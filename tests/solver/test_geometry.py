@@ -222,6 +222,13 @@ def test_the_grid_stencil_assembles_the_products_matrix_exactly_symmetric():
         assert H.has_sorted_indices and (H != H.T).nnz == 0
     with pytest.raises(ShapeError, match="grid stencil"):
         geometry.NormalMatrix(*pieces, grid=np.ones((3, n), bool))
+    for small in (np.zeros((4, 4), bool), np.eye(5, dtype=bool), np.pad(np.ones((1, 6), bool), 2)):  # none, lone, a row
+        ops, m = _make_operators(small), int(small.sum())
+        blocks = np.ones((3, 3, m)) + np.eye(3)[:, :, None]
+        ref = geometry.NormalMatrix((sp.identity(m, format="csr"), ops["Du"], ops["Dv"]), ops["second"])
+        H, expected = ops["normal"].assemble(blocks, (0.5, 0.5)), ref.assemble(blocks, (0.5, 0.5))
+        assert H.shape == (m, m) and np.array_equal(H.indices, expected.indices)
+        np.testing.assert_allclose(H.toarray(), expected.toarray(), rtol=1e-12, atol=1e-12)
 
 
 def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch):
