@@ -209,7 +209,7 @@ def test_the_grid_stencil_assembles_the_products_matrix_exactly_symmetric():
     n = int(mask.sum())
     pieces = ((sp.identity(n, format="csr"), ops["Du"], ops["Dv"]), ops["second"])
     products = geometry.NormalMatrix(*pieces)
-    grid = ops["normal"]  # a level's own operators: the grid stencil
+    grid = ops["normal"].make()  # a level's own operators: the grid stencil, made at its first use
     assert grid.stencil is not None and products.stencil is None
     M = rng.normal(size=(3, 3, n))
     M = np.einsum("abn,cbn->acn", M, M)

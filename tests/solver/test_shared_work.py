@@ -412,9 +412,10 @@ def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_gi
 
 
 def test_a_level_made_ahead_has_its_difference_operators_before_its_assembler_and_the_same_matrix(monkeypatch):
-    """:func:`operators.operators_ahead` makes the level's normal-matrix assembler after its difference operators,
-    on the same thread: the level's operators are there while the assembler is still being made (the bringing up
-    needs no assembler), and its first assembly waits for it and gives the bits of one made in place."""
+    """:func:`operators.operators_ahead` with ``assembler`` makes the level's normal-matrix assembler after its
+    difference operators, on the same thread: the level's operators are there while the assembler is still being made
+    (the bringing up needs no assembler), and its first assembly waits for it and gives the bits of one made in place.
+    Without ``assembler`` (a level only brought up) it is made at its first assembly, once, and never if none comes."""
     import threading
 
     from nlipscalib.solver import operators
@@ -423,34 +424,45 @@ def test_a_level_made_ahead_has_its_difference_operators_before_its_assembler_an
     mask[12:17, 20:31] = False
     release = threading.Event()
     make = operators._normal_matrix
+    made = []
 
     def held(*args, **kwargs):
+        made.append(threading.current_thread().name)
         assert release.wait(10)  # the level's operators are asked for first: held, they would wait here
         return make(*args, **kwargs)
 
     monkeypatch.setattr(operators, "_normal_matrix", held)
+    n = int(mask.sum())
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(3, 3, n))
+    M = np.einsum("abn,cbn->acn", M, M)
+    weights = (rng.uniform(0.1, 1.0, n), 0.5)
     before = threads.workers()
     try:
         threads.set_workers(2)
-        reuse.clear()
-        lv = {"mask": mask}
-        operators.operators_ahead(lv)
-        ops = operators.level_operators(lv)  # returns while the assembler is held
-        assert not release.is_set() and not ops["normal"].future.done()
-        n = int(mask.sum())
-        rng = np.random.default_rng(3)
-        M = rng.normal(size=(3, 3, n))
-        M = np.einsum("abn,cbn->acn", M, M)
-        weights = (rng.uniform(0.1, 1.0, n), 0.5)
-        release.set()
-        H = ops["normal"].assemble(M, weights)
+        found = {}
+        for assembler in (True, False):
+            reuse.clear()
+            made.clear()
+            release.clear()
+            lv = {"mask": mask}
+            operators.operators_ahead(lv, assembler=assembler)
+            ops = operators.level_operators(lv)  # returns while the assembler is held (or not asked for)
+            assert not release.is_set()
+            release.set()
+            if not assembler:
+                assert made == []  # nothing asked for it yet
+            found[assembler] = ops["normal"].assemble(M, weights)
+            ops["normal"].assemble(M, weights)
+            assert len(made) == 1 and made[0].startswith("nlips-operators" if assembler else "MainThread"), made
     finally:
         threads.set_workers(before)
         release.set()
         reuse.clear()
-    expected = operators._make_operators(mask)["normal"].assemble(M, weights)
-    for name in ("data", "indices", "indptr"):
-        np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
+    expected = make(operators._make_operators(mask), mask).assemble(M, weights)
+    for H in found.values():
+        for name in ("data", "indices", "indptr"):
+            np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
 
 
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
