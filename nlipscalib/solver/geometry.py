@@ -236,8 +236,8 @@ class NormalMatrix:
       each entry a neighbour at a small offset), so every term of H lies on one of a few diagonals of the grid, and
       an assembly is a few dozen whole-grid products and shifted sums (:class:`_GridStencil`): 7 ms instead of
       29-31 ms on the cube press's 336x332 auto ROI (111,552 pixels), for a build of ~45 ms against the products'
-      ~7.5, made with the level's operators (on a thread of their own while the coarser levels are solved,
-      :func:`nlipscalib.solver.operators.operators_ahead`). Exactly symmetric; the products' values to rounding
+      ~7.5, made at a level's first assembly or ahead on its operators' thread
+      (:class:`nlipscalib.solver.operators._Assembler`). Exactly symmetric; the products' values to rounding
       (benchmarks/RESULTS.md, s34-cubef32).
 
     Parameters
