@@ -69,16 +69,18 @@ def solve_coarse_to_fine(
     report: dict,
     t_first: np.ndarray | None = None,
     refine_finest: bool = True,
+    finest_later: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
 
     ``leds``: (positions, directions, mu, psi) of the LEDs kept (``LevelData.leds``).
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
     ``refine_finest``: False: the finest level (of several) is not iterated but brought up from the one before it
-    (:func:`_brought_up`)."""
+    (:func:`_brought_up`); ``finest_later``: a later solve on the same mask iterates it (the outer loop's last pass):
+    its normal-matrix assembler is made ahead with its operators (:func:`.operators.operators_ahead`)."""
     t_state = out = None
     if not refine_finest and len(levels) > 1:
-        operators_ahead(levels[-1])
+        operators_ahead(levels[-1], assembler=finest_later)
     for k, lv in enumerate(levels):
         if bar is not None:
             bar.set_description_str(

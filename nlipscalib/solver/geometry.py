@@ -232,23 +232,42 @@ class NormalMatrix:
       matrix-vector product: 0.04 s instead of 0.38-0.49 s at 307,200 pixels, for a build of 1.1-1.5 s. That
       pays where the level recurs: the large levels of the sensor's whole gel, whose operators are kept on disk
       for every later press of the sensor (:data:`nlipscalib.solver.operators.OPERATOR_PERSIST_PIXELS`).
+    - **grid stencil** (``grid=mask``): the operators are stencils on the pixel grid of ``mask`` (each row a pixel,
+      each entry a neighbour at a small offset), so every term of H lies on one of a few diagonals of the grid, and
+      an assembly is a few dozen whole-grid products and shifted sums (:class:`_GridStencil`): 7 ms instead of
+      29-31 ms on the cube press's 336x332 auto ROI (111,552 pixels), for a build of ~45 ms against the products'
+      ~7.5, made at a level's first assembly or ahead on its operators' thread
+      (:class:`nlipscalib.solver.operators._Assembler`). Exactly symmetric; the products' values to rounding
+      (benchmarks/RESULTS.md, s34-cubef32).
 
     Parameters
     ----------
     ops : k sparse (N, N) operators P_a coupled by the blocks (here identity, D_u, D_v).
     extras : sparse (M_j, N) operators E_j weighted by scalars (here the second differences).
     fixed : build the fixed-pattern map (see above).
+    grid : (H, W) bool or None -- the mask whose pixels, in row-major order, are the operators' rows and columns
+        (every operator, extras too, then (N, N)): assemble by the grid's diagonals (see above). Not with ``fixed``.
     """
 
-    def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix] = (), fixed: bool = False):
+    def __init__(
+        self,
+        ops: Sequence[sp.spmatrix],
+        extras: Sequence[sp.spmatrix] = (),
+        fixed: bool = False,
+        grid: np.ndarray | None = None,
+    ):
         import scipy.sparse as sp
 
         n = ops[0].shape[1]
         self.n, self.k = n, len(ops)
         self.sizes = [E.shape[0] for E in extras]
         self.fixed = None
+        self.stencil = None
         if fixed:
             self.fixed = _FixedPattern(ops, extras)
+            return
+        if grid is not None:
+            self.stencil = _GridStencil(grid, ops, extras)
             return
         self.G = sp.vstack(list(ops) + list(extras)).tocsr()
         self.GT = self.G.T.tocsr()
@@ -269,6 +288,8 @@ class NormalMatrix:
 
         if self.fixed is not None:
             return self.fixed.assemble(M, weights)
+        if self.stencil is not None:
+            return self.stencil.assemble(M, weights)
         parts = [np.ascontiguousarray(M.transpose(0, 2, 1)).ravel()]  # K[a*n + i, b*n + i] = M[a, b, i]
         parts += [np.broadcast_to(np.asarray(w, np.float64), (m,)) for m, w in zip(self.sizes, weights)]
         K = sp.csr_matrix((np.concatenate(parts), self._indices, self._indptr), shape=self._shape)
@@ -359,6 +380,164 @@ class _FixedPattern:
         H.data, H.indices, H.indptr = data, indices, self.indptr.copy()
         H.has_sorted_indices = True
         if not all(nonzero):
+            H.eliminate_zeros()  # as the products leave them out: the same pattern for AMG's set-up
+        return H
+
+
+STENCIL_DENSE_SHARE = 0.25
+"""An operator's entries at one grid offset are held as a whole grid (:class:`_GridStencil`'s products over the grid)
+where more than this share of the pixels have one, else as a list (the one-sided differences along the mask's edges,
+the second differences' far ends): their few terms are added at their positions."""
+
+
+class _GridStencil:
+    """The grid-stencil assembly of :class:`NormalMatrix` (``grid=mask``).
+
+    Each operator is split by the grid offset of its entries (row pixel p, column pixel p + o): a coefficient per
+    pixel for each offset o. The blocks' term P_a^T diag(M_ab) P_b then puts M_ab[p] c_a,o1[p] c_b,o2[p] at (p + o1,
+    p + o2), i.e. on H's diagonal d = o2 - o1 at row p + o1: H's upper diagonals (d >= 0) are sums of whole-grid
+    products shifted by o1, held on a grid padded by twice the operators' reach so that no shift leaves it, and
+    its lower ones their mirror (exactly symmetric). H's pattern (where a term lands) and where each of its entries
+    lies among the diagonals are found once, at the build.
+
+    Parameters
+    ----------
+    mask : (H, W) bool -- the operators' pixels, in row-major order.
+    ops, extras : as :class:`NormalMatrix`'s; every one (N, N), N the mask's pixels.
+    """
+
+    def __init__(self, mask: np.ndarray, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> None:
+        import scipy.sparse as sp
+
+        mats = [sp.csr_matrix(P) for P in (*ops, *extras)]
+        ys, xs = (a.astype(np.int64) for a in np.nonzero(mask))
+        n = len(ys)
+        if any(P.shape != (n, n) for P in mats):
+            raise ShapeError(f"a grid stencil needs (N, N) operators on the mask's {n} pixels")
+        entries = []  # per operator: each entry's row pixel and its grid step (dy, dx) to the column's pixel
+        for P in mats:
+            rows = np.repeat(np.arange(n), np.diff(P.indptr))
+            entries.append((rows, ys[P.indices] - ys[rows], xs[P.indices] - xs[rows]))
+        reach = max([int(max(np.abs(dy).max(initial=0), np.abs(dx).max(initial=0))) for _, dy, dx in entries] + [0])
+        pad = 2 * reach  # a term's row is p + o1, its column p + o2: within twice the reach of p
+        width = mask.shape[1] + 2 * pad
+        self.L = (mask.shape[0] + 2 * pad) * width
+        self.margin = pad * (width + 1)
+        self.n, self.pos = n, (ys + pad) * width + xs + pad
+        self.shape = (n, n)
+        offsets = [self._offsets(P, e, reach, width) for P, e in zip(mats, entries)]
+        k = len(ops)
+        self.pairs = [(a, b) for a in range(k) for b in range(a, k)] + [(k + j, k + j) for j in range(len(extras))]
+        self.diags = sorted(
+            {abs(o2 - o1) for a, b in self.pairs for o1, *_ in offsets[a] for o2, *_ in offsets[b] if a < b or o2 >= o1}
+        )
+        """H's upper diagonals, as flat grid offsets (0 first)."""
+        touched = self._plan(offsets)
+        self._pattern(touched)
+
+    def _offsets(self, P: sp.csr_matrix, entries: tuple, reach: int, width: int) -> list[tuple]:
+        """(flat grid offset, its coefficients on the grid, the grid positions of its entries where they are few,
+        else None) of each offset of ``P``'s entries."""
+        rows, dy, dx = entries
+        side = 2 * reach + 1
+        code = (dy + reach) * side + dx + reach
+        counts = np.bincount(code, minlength=side * side)
+        at = self.pos[rows]
+        out = []
+        for c in np.flatnonzero(counts):
+            sel = np.flatnonzero(code == c)
+            coef = np.zeros(self.L)
+            coef[at[sel]] = P.data[sel]
+            few = at[sel] if counts[c] <= STENCIL_DENSE_SHARE * self.n else None
+            out.append(((c // side - reach) * width + c % side - reach, coef, few))
+        return out
+
+    def _plan(self, offsets: list[list[tuple]]) -> np.ndarray:
+        """Each pair's terms: whole-grid ones in :attr:`dense` ((pair, o1's coefficients, [(o2's coefficients,
+        shift, diagonal)])), the few in :attr:`few_target` / :attr:`few_weight` / :attr:`few_coef`; returns the
+        (diagonals, L) bool grid of the upper diagonals' positions some term reaches."""
+        L, lo = self.L, self.margin
+        index = {d: j for j, d in enumerate(self.diags)}
+        touched = np.zeros((len(self.diags), L), bool)
+        self.dense: list[tuple] = []
+        target, weight, coef = [], [], []
+        for q, (a, b) in enumerate(self.pairs):
+            for o1, c1, few1 in offsets[a]:
+                inner = []
+                for o2, c2, few2 in offsets[b]:
+                    if a == b and o2 < o1:  # its mirror: the same term (o1, o2) below the diagonal
+                        continue
+                    twice = 2.0 if a != b and o1 == o2 else 1.0  # (a, b) and (b, a) on the diagonal alike
+                    shift, j = min(o1, o2), index[abs(o2 - o1)]
+                    if few1 is None and few2 is None:
+                        inner.append((c2 * twice if twice != 1.0 else c2, shift, j))
+                        touched[j, lo + shift : L - lo + shift] |= (c1[lo : L - lo] != 0) & (c2[lo : L - lo] != 0)
+                        continue
+                    at = few1 if few2 is None or (few1 is not None and len(few1) <= len(few2)) else few2
+                    value = twice * c1[at] * c2[at]
+                    at, value = at[value != 0], value[value != 0]
+                    target.append(j * L + at + shift)
+                    weight.append(q * L + at)
+                    coef.append(value)
+                    touched[j, at + shift] = True
+                if inner:
+                    self.dense.append((q, c1, inner))
+        self.few_target = np.concatenate(target) if target else np.zeros(0, np.int64)
+        self.few_weight = np.concatenate(weight) if weight else np.zeros(0, np.int64)
+        self.few_coef = np.concatenate(coef) if coef else np.zeros(0)
+        return touched
+
+    def _pattern(self, touched: np.ndarray) -> None:
+        """H's CSR pattern (sorted: the grid is row-major) and each entry's position among the upper diagonals
+        (:attr:`gather`): entry (p, p + d) is there where a term reached its upper position, row p for d >= 0,
+        row p + d for d < 0. Each diagonal's positions are read off the grid by a slice, then at the pixels by one
+        take: no (N, diagonals) index arrays (a 640x480 level's would be ~80 MB each)."""
+        L, lo = self.L, self.margin
+        index = {d: j for j, d in enumerate(self.diags)}
+        full = np.array(sorted({*self.diags, *(-d for d in self.diags)}), np.int64)
+        upper = np.array([index[abs(d)] * L + min(d, 0) for d in full], np.int64)
+        span = L - 2 * lo
+        shifted = np.empty((len(full), span), bool)
+        for s, d in enumerate(full):
+            j = index[abs(d)]
+            shifted[s] = touched[j, lo + min(d, 0) : lo + min(d, 0) + span]
+        valid = np.ascontiguousarray(shifted.take(self.pos - lo, axis=1).T)  # (N, diagonals)
+        pixel, slot = np.divmod(np.flatnonzero(valid), len(full))  # each entry's row and diagonal, in CSR order
+        rows = self.pos[pixel]  # its row's pixel on the grid
+        self.gather = rows + upper[slot]
+        column = np.full(L, -1, np.int32)
+        column[self.pos] = np.arange(self.n, dtype=np.int32)
+        self.indices = column[rows + full[slot]]
+        self.indptr = np.concatenate([[0], np.cumsum(np.count_nonzero(valid, axis=1))]).astype(np.int32)
+
+    def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
+        """H (N, N) CSR, float64, sorted indices, for blocks M (k, k, N) and the extras' weights (each a scalar or
+        one per pixel; not given: 0)."""
+        import scipy.sparse as sp
+
+        L = self.L
+        k = M.shape[0]
+        given = [M[a, b] for a in range(k) for b in range(a, k)] + list(weights)
+        given += [0.0] * (len(self.pairs) - len(given))
+        grid = np.zeros((len(self.pairs), L))
+        for q, w in enumerate(given):
+            grid[q, self.pos] = w
+        upper = np.zeros((len(self.diags), L))
+        product, term = np.empty(L), np.empty(L)
+        for q, c1, inner in self.dense:
+            np.multiply(grid[q], c1, out=product)
+            for c2, shift, j in inner:
+                np.multiply(product, c2, out=term)
+                if shift >= 0:  # the term at pixel p belongs to row p + shift
+                    upper[j, shift:] += term[: L - shift]
+                else:
+                    upper[j, :shift] += term[-shift:]
+        if len(self.few_target):
+            np.add.at(upper.reshape(-1), self.few_target, grid.reshape(-1)[self.few_weight] * self.few_coef)
+        H = sp.csr_matrix(self.shape, dtype=np.float64)
+        H.data, H.indices, H.indptr = upper.reshape(-1)[self.gather], self.indices.copy(), self.indptr.copy()
+        H.has_sorted_indices = True
+        if not H.data.all():
             H.eliminate_zeros()  # as the products leave them out: the same pattern for AMG's set-up
         return H
 

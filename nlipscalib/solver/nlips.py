@@ -91,6 +91,7 @@ def solve(
     unrefined: int = 0,
     where: str | Path | None = None,
     led_radius: float = 0.0,
+    finest_later: bool = False,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -131,6 +132,9 @@ def solve(
         0.09 mm bump from it (benchmarks/RESULTS.md, s32-rimdepth). Each level shades the disks' centres as points times
         their ratio to the disks fixed at its start (:meth:`.kernel.Model.fix_disk_ratio`): ~1.1x a point solve's
         CPU (s33-diskfast; the 7 points at every evaluation cost 1.3-1.5x).
+    finest_later : with ``unrefined``: a later solve on the same ``mask`` iterates the finest level (the outer loop's
+        last pass after its first): its normal-matrix assembler is made ahead, beside this solve
+        (:func:`.coarse_to_fine.solve_coarse_to_fine`). Results are the same either way.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -158,6 +162,7 @@ def solve(
             init_depth,
             unrefined,
             led_radius,
+            finest_later,
         )
     refined = opts.normals == "refined" and unrefined == 0  # an unrefined pass only feeds the next one
     if refined:
@@ -212,6 +217,7 @@ def _solve_checked(
     init_depth: np.ndarray | None,
     unrefined: int,
     led_radius: float = 0.0,
+    finest_later: bool = False,
 ) -> SolveResult:
     """:func:`solve` on checked inputs (see there), without its timer and warnings."""
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
@@ -241,7 +247,9 @@ def _solve_checked(
     be = Backend(backend, opts.dtype)
     try:
         with blas_threads(1):
-            t_state, out = solve_coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
+            t_state, out = solve_coarse_to_fine(
+                levels, data.leds, opts, be, bar, report, t_first, unrefined == 0, finest_later
+            )
     finally:  # on Ctrl-C too: a notebook keeps the interrupted frames, and a bar left open nests the next one
         if bar is not None:
             bar.close()

@@ -4,13 +4,18 @@ unit normals of a log-depth through them, by pixel blocks on the thread pool."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import geometry, reuse, threads
 from .kernel import PARALLEL_MIN_PIXELS
+
+if TYPE_CHECKING:  # in hints only
+    import scipy.sparse as sp
 
 OPERATOR_LEVELS = 8
 """Levels whose operators a process keeps (solver.reuse): a pyramid's four to six, and a spare. A 640x480 level's
@@ -52,10 +57,12 @@ def _persists(lv: dict) -> bool:
     return lv.get("recurs", False) and int(lv["mask"].sum()) >= OPERATOR_PERSIST_PIXELS
 
 
-def operators_ahead(lv: dict) -> None:
+def operators_ahead(lv: dict, assembler: bool = False) -> None:
     """Start making level ``lv``'s operators on a thread of its own (:func:`level_operators` then waits for them),
     while the coarser levels are solved; nothing when they are kept (in this process or on disk) or when the
-    solve has one core.
+    solve has one core. ``assembler``: the level is iterated later (the outer loop's last pass, on the same mask):
+    its normal-matrix assembler is made after them on the same thread (:class:`_Assembler`), else at its first
+    assembly, if any.
 
     Why: an outer pass before the last solves a coarse level, then brings the finest one up
     (:func:`.coarse_to_fine._brought_up`), which needs the finest level's operators: 0.08-0.1 s of one core on the
@@ -68,15 +75,44 @@ def operators_ahead(lv: dict) -> None:
     if reuse.stored("operators", (reuse.digest(mk), False)):
         return
     pool = ThreadPoolExecutor(1, "nlips-operators")
-    lv["ops_ahead"] = pool.submit(_make_operators, mk)
-    pool.shutdown(wait=False)  # its one task runs on; its thread ends with it
+    lv["ops_ahead"] = operators = pool.submit(_make_operators, mk)
+    if assembler:  # after them, on the same thread: the level's bringing up waits for its difference operators alone
+        pool.submit(lambda: operators.result()["normal"].make())
+    pool.shutdown(wait=False)  # its tasks run on; its thread ends with them
+
+
+class _Assembler:
+    """A level's normal-matrix assembler by the grid's diagonals (:class:`nlipscalib.solver.geometry.NormalMatrix`,
+    ``grid``), made once: by :meth:`make` (on the operators' thread, :func:`operators_ahead`) or at its first
+    :meth:`assemble`; a level that is never iterated never makes it.
+
+    Why: the stencil's build is ~45 ms of one core on the cube press's 111,552-pixel auto ROI (the products' 7.5 ms),
+    repaid by its assemblies (7 ms instead of 29-31). Made with the difference operators, the levels only brought up
+    paid it for nothing (a whole frame's dent focus, 60,500-133,952 pixels, at every focus pass) and, made in the same
+    task, the cube press's first pass waited 40-480 ms at its bringing up for it: its many short NumPy calls each waited
+    for the GIL while the coarse levels' Python ran on the main thread (benchmarks/RESULTS.md, s34-cubef32)."""
+
+    def __init__(self, ops: dict, mk: np.ndarray):
+        self._ops, self._mk = ops, mk
+        self._made: geometry.NormalMatrix | None = None
+        self._lock = threading.Lock()
+
+    def make(self) -> geometry.NormalMatrix:
+        """The assembler, made by the first caller (another waits for it)."""
+        with self._lock:
+            if self._made is None:
+                self._made = _normal_matrix(self._ops, self._mk)
+            return self._made
+
+    def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
+        """:meth:`nlipscalib.solver.geometry.NormalMatrix.assemble` of the assembler (made here if not yet)."""
+        return self.make().assemble(M, weights)
 
 
 def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
-    """Difference operators of a level's mask and its normal-matrix assembler (``fixed``: with the
-    fixed-pattern map, :class:`nlipscalib.solver.geometry.NormalMatrix`)."""
-    import scipy.sparse as sp
-
+    """Difference operators of a level's mask and its normal-matrix assembler: by the grid's diagonals, made at its
+    first use (:class:`_Assembler`), or by the fixed-pattern map (``fixed``, made here: a level kept on disk,
+    :class:`nlipscalib.solver.geometry.NormalMatrix`)."""
     forward = geometry.difference_operators(mk)
     backward = geometry.difference_operators(mk, backward=True)
     Du, Dv, has_grad = geometry.gradient_operators(mk, forward, backward)
@@ -85,17 +121,20 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
     # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
     second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
     lap = (second[0].T @ second[0] + second[1].T @ second[1]).tocsr()
-    eye = sp.identity(Du.shape[0], format="csr")
     # Central differences: one-sided ones put the normal half a pixel off the data and bias the
     # fit by about a degree on this lens.
-    return {
-        "Du": Du,
-        "Dv": Dv,
-        "has_grad": has_grad,
-        "lap": lap,
-        "second": second,
-        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed),
-    }
+    ops = {"Du": Du, "Dv": Dv, "has_grad": has_grad, "lap": lap, "second": second}
+    ops["normal"] = _normal_matrix(ops, mk, fixed=True) if fixed else _Assembler(ops, mk)
+    return ops
+
+
+def _normal_matrix(ops: dict, mk: np.ndarray, fixed: bool = False) -> geometry.NormalMatrix:
+    """The normal-matrix assembler of a level's difference operators ``ops`` on its mask ``mk``: by the grid's
+    diagonals (the level's own mask), or by the fixed-pattern map (``fixed``)."""
+    import scipy.sparse as sp
+
+    eye = sp.identity(ops["Du"].shape[0], format="csr")
+    return geometry.NormalMatrix((eye, ops["Du"], ops["Dv"]), ops["second"], fixed=fixed, grid=None if fixed else mk)
 
 
 def log_depth_gradient(ops: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -806,6 +806,8 @@ class _Runner:
             unrefined=unrefined,
             where=self.press.folder,
             led_radius=self.led_radius,
+            # a pass left unrefined on the whole mask: the last pass iterates its finest level (a focus pass's never)
+            finest_later=receivers is None and unrefined > 0,
         )
         if receivers is None and not result.reconstructed.any():  # a focus pass is merged into the last result
             dead = [i + 1 for i in result.report["dead_leds"]]

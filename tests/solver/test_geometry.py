@@ -192,6 +192,45 @@ def test_the_normal_basis_is_numpys_cross_products_to_the_bit():
         np.testing.assert_array_equal(got, np.cross(a, b))
 
 
+def test_the_grid_stencil_assembles_the_products_matrix_exactly_symmetric():
+    """The assembly by the grid's diagonals (``grid=mask``) gives the products' H to rounding, on the same pattern
+    (the products' zeros left out alike: unlit pixels), and exactly symmetric, on a mask with holes, a ragged edge
+    and one-sided differences; an operator not on the mask's pixels is refused."""
+    import scipy.sparse as sp
+
+    from nlipscalib.solver.operators import _make_operators
+
+    rng = np.random.default_rng(11)
+    mask = np.ones((21, 26), bool)
+    mask[6:9, 5:12] = False
+    mask[0, :7] = mask[-1, 15:] = False
+    mask[14, 3] = mask[2, 20] = False
+    ops = _make_operators(mask)
+    n = int(mask.sum())
+    pieces = ((sp.identity(n, format="csr"), ops["Du"], ops["Dv"]), ops["second"])
+    products = geometry.NormalMatrix(*pieces)
+    grid = ops["normal"].make()  # a level's own operators: the grid stencil, made at its first use
+    assert grid.stencil is not None and products.stencil is None
+    M = rng.normal(size=(3, 3, n))
+    M = np.einsum("abn,cbn->acn", M, M)
+    weights = (rng.uniform(0.01, 1.0, n), rng.uniform(0.01, 1.0, n))
+    for blocks in (M, np.where(np.arange(n) < n // 3, 0.0, M)):  # all lit; a third unlit
+        ref, H = products.assemble(blocks, weights), grid.assemble(blocks, weights)
+        np.testing.assert_array_equal(H.indptr, ref.indptr)
+        np.testing.assert_array_equal(H.indices, ref.indices)
+        np.testing.assert_allclose(H.data, ref.data, rtol=1e-12, atol=1e-12 * abs(ref.data).max())
+        assert H.has_sorted_indices and (H != H.T).nnz == 0
+    with pytest.raises(ShapeError, match="grid stencil"):
+        geometry.NormalMatrix(*pieces, grid=np.ones((3, n), bool))
+    for small in (np.zeros((4, 4), bool), np.eye(5, dtype=bool), np.pad(np.ones((1, 6), bool), 2)):  # none, lone, a row
+        ops, m = _make_operators(small), int(small.sum())
+        blocks = np.ones((3, 3, m)) + np.eye(3)[:, :, None]
+        ref = geometry.NormalMatrix((sp.identity(m, format="csr"), ops["Du"], ops["Dv"]), ops["second"])
+        H, expected = ops["normal"].assemble(blocks, (0.5, 0.5)), ref.assemble(blocks, (0.5, 0.5))
+        assert H.shape == (m, m) and np.array_equal(H.indices, expected.indices)
+        np.testing.assert_allclose(H.toarray(), expected.toarray(), rtol=1e-12, atol=1e-12)
+
+
 def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch):
     """Each row block's task makes its part of H (S's product, the indices' copy, the check for zeros): the bits of
     S @ [M, w] in one product, on one thread or two, zeros left out alike; the arrays H's own."""
@@ -229,10 +268,10 @@ def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch
         threads.set_workers(before)
 
 
-@pytest.mark.parametrize("fixed", [False, True])
-def test_the_extras_weighted_per_row_are_their_weighted_grams(fixed, monkeypatch):
+@pytest.mark.parametrize("way", ["products", "fixed", "grid"])
+def test_the_extras_weighted_per_row_are_their_weighted_grams(way, monkeypatch):
     """The edge-preserving smoothness weighs each second difference on its own: H = blocks + sum_j E_j^T diag(w_j)
-    E_j with w_j one weight per row, alike in both assemblies, on one thread or two (R's row blocks beside S's);
+    E_j with w_j one weight per row, alike in all three assemblies, on one thread or two (R's row blocks beside S's);
     a scalar weight is the array of it."""
     import scipy.sparse as sp
 
@@ -250,7 +289,7 @@ def test_the_extras_weighted_per_row_are_their_weighted_grams(fixed, monkeypatch
     weights = (rng.uniform(0.01, 1.0, n), 0.3)
     blocks = sum(ops[a].T @ sp.diags(M[a, b]) @ ops[b] for a in range(3) for b in range(3))
     ref = blocks + extras[0].T @ sp.diags(weights[0]) @ extras[0] + 0.3 * (extras[1].T @ extras[1])
-    matrix = geometry.NormalMatrix(ops, extras, fixed=fixed)
+    matrix = geometry.NormalMatrix(ops, extras, fixed=way == "fixed", grid=mask if way == "grid" else None)
     monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
     before = threads.workers()
     try:

@@ -396,7 +396,7 @@ def test_a_level_assembled_by_the_fixed_pattern_map_solves_as_with_products(tmp_
     assert any(ops["normal"].fixed is not None for ops in made)
     made.clear()
     solve_press(press, roi=(10, 10, 60, 40), interreflection="off")  # an ROI: its masks do not recur
-    assert made and all(ops["normal"].fixed is None for ops in made)
+    assert made and all(isinstance(ops["normal"], operators._Assembler) for ops in made)  # by the grid's diagonals
     rec = products.reconstructed & fixed.reconstructed
     assert rec.sum() > 0.9 * products.reconstructed.sum()
     # rounding differs, and the Gauss-Newton/CG iterations stop at their tolerances from slightly other

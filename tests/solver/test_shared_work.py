@@ -411,6 +411,106 @@ def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_gi
         np.testing.assert_array_equal(results[1].arrays()[key], results[2].arrays()[key], err_msg=key)
 
 
+def test_a_pass_whose_finest_level_is_iterated_later_makes_its_assembler_ahead(press, monkeypatch):
+    """``solve(..., unrefined=1, finest_later=True)`` (the outer loop's first pass on the whole mask) makes the
+    finest level's normal-matrix assembler on the operators' thread beside the solve; without ``finest_later`` (a
+    focus pass, whose finest level is only brought up) none is made. The results are the same bits either way."""
+    import threading
+
+    from nlipscalib.solver import operators
+
+    made = []
+    make = operators._normal_matrix
+
+    def recorded(ops, mk, fixed=False):
+        made.append((int(mk.sum()), threading.current_thread().name))
+        return make(ops, mk, fixed)
+
+    monkeypatch.setattr(operators, "_normal_matrix", recorded)
+    lin = press.linear(press.led_images)
+    two = SolverOptions(pyramid_levels=2)
+    finest = int(np.isfinite(press.reference.depth).sum())
+    before = threads.workers()
+    results = {}
+    try:
+        threads.set_workers(2)
+        for later in (True, False):
+            reuse.clear()
+            made.clear()
+            results[later] = solve(
+                lin,
+                press.camera,
+                press.leds,
+                prior_depth=press.reference.depth,
+                options=two,
+                unrefined=1,
+                finest_later=later,
+            )
+            for thread in threading.enumerate():  # the operators' thread ends with its tasks
+                if thread.name.startswith("nlips-operators"):
+                    thread.join(10)
+            assert [name for n, name in made if n == finest] == (["nlips-operators_0"] if later else []), made
+    finally:
+        threads.set_workers(before)
+        reuse.clear()
+    for key in ("depth", "normals", "albedo", "confidence"):
+        np.testing.assert_array_equal(results[True].arrays()[key], results[False].arrays()[key], err_msg=key)
+
+
+def test_a_level_made_ahead_has_its_difference_operators_before_its_assembler_and_the_same_matrix(monkeypatch):
+    """:func:`operators.operators_ahead` with ``assembler`` makes the level's normal-matrix assembler after its
+    difference operators, on the same thread: the level's operators are there while the assembler is still being made
+    (the bringing up needs no assembler), and its first assembly waits for it and gives the bits of one made in place.
+    Without ``assembler`` (a level only brought up) it is made at its first assembly, once, and never if none comes."""
+    import threading
+
+    from nlipscalib.solver import operators
+
+    mask = np.ones((40, 50), bool)
+    mask[12:17, 20:31] = False
+    release = threading.Event()
+    make = operators._normal_matrix
+    made = []
+
+    def held(*args, **kwargs):
+        made.append(threading.current_thread().name)
+        assert release.wait(10)  # the level's operators are asked for first: held, they would wait here
+        return make(*args, **kwargs)
+
+    monkeypatch.setattr(operators, "_normal_matrix", held)
+    n = int(mask.sum())
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(3, 3, n))
+    M = np.einsum("abn,cbn->acn", M, M)
+    weights = (rng.uniform(0.1, 1.0, n), 0.5)
+    before = threads.workers()
+    try:
+        threads.set_workers(2)
+        found = {}
+        for assembler in (True, False):
+            reuse.clear()
+            made.clear()
+            release.clear()
+            lv = {"mask": mask}
+            operators.operators_ahead(lv, assembler=assembler)
+            ops = operators.level_operators(lv)  # returns while the assembler is held (or not asked for)
+            assert not release.is_set()
+            release.set()
+            if not assembler:
+                assert made == []  # nothing asked for it yet
+            found[assembler] = ops["normal"].assemble(M, weights)
+            ops["normal"].assemble(M, weights)
+            assert len(made) == 1 and made[0].startswith("nlips-operators" if assembler else "MainThread"), made
+    finally:
+        threads.set_workers(before)
+        release.set()
+        reuse.clear()
+    expected = make(operators._make_operators(mask), mask).assemble(M, weights)
+    for H in found.values():
+        for name in ("data", "indices", "indptr"):
+            np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
+
+
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
     """:func:`coarse_to_fine._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
     cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
