@@ -380,6 +380,21 @@ into every frame's colours (the drifts it corrects -- LED ageing, exposure, a sc
 REFRESH_GAIN_LIMIT = 2.0
 """NLiPsNet's refresh: each pixel's gain is clipped to [1/this, this]; a sensor that changed by more needs a new
 calibration, not a refresh."""
+REFERENCE_PRESS_SHARE = 0.0025
+"""NLiPsNet's refresh (``nlips infer --reference FRAME``): a frame offered as the undeformed sensor shows a press
+when one patch of at least this share of the gel both changed by the change rule (:data:`CHANGE_NOISE_SIGMAS`) and
+changed colour beyond a smooth field (:mod:`nlipscalib.learn.reference_press`). At 160x120: twin presses 0.85-21 %
+(a 6 mm sphere 0.15 mm deep the least), clean references of other seeds, the emulated camera, one LED dimmed to
+50-95 %, a colour group to 90 %, all to 80 %, 2 % noise and a 10-25 % darker scuff 0 (benchmarks/RESULTS.md,
+s34-inferref)."""
+REFERENCE_COLOUR_FIELD = 0.08
+"""... the smooth field an aged LED leaves in the colours: Gaussian sigma, this fraction of the image's width (0.15
+left patches up to 5 % of the gel on one LED at half its light, 0.08 at most 1.1 %: each LED's share of the light
+changes quickly near it)."""
+REFERENCE_COLOUR_SIGMAS = 5.0
+"""... a pixel's colour stands out of that field beyond the gel's median distance by this many robust sigmas ..."""
+REFERENCE_COLOUR_MIN = 0.01
+"""... and by at least this much (log ratio, about 1 % of a colour's share)."""
 FRAME_BLACK_FRACTION = 0.01
 """NLiPsNet: a frame that differs from the calibration's reference frame over most of the gel
 (:data:`FRAME_MISMATCH_FRACTION`) and whose median brightness on the gel is at most this fraction of the

@@ -388,13 +388,9 @@ class Predictor:
 def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32: ``frame`` Gaussian-smoothed over the gel only (normalised by the gel's own weight, so the
     dark off-gel pixels do not darken its rim), :data:`~nlipscalib.core.tolerances.REFRESH_SMOOTHING_PX`."""
-    import cv2
+    from .reference_press import smooth_on_gel
 
-    sigma = REFRESH_SMOOTHING_PX
-    weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
-    blurred = cv2.GaussianBlur(np.where(valid[..., None], frame, 0).astype(np.float32), (0, 0), sigma)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(weight[..., None] > 0, blurred / weight[..., None], 0).astype(np.float32)
+    return smooth_on_gel(frame, valid, REFRESH_SMOOTHING_PX)
 
 
 def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) -> str:
