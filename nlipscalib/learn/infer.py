@@ -161,7 +161,9 @@ class Predictor:
         noise is not copied into every frame). A 10 % dimmer LED group cost 6-7 deg of contact error, 0.0-0.1
         after a refresh (benchmarks/RESULTS.md, s28-ageing). A gel that swelled changes the shading itself, not
         only its scale: 0.15 mm of radius cost 0.35 deg on one twin press, 0.05 after a refresh; more than that
-        was not measured, and a new calibration is the sure remedy.
+        was not measured, and a new calibration is the sure remedy. A ``reference`` taken while something pressed
+        the gel would carry its dent into every frame: ``nlips infer --reference`` refuses one
+        (:func:`.reference_press.press_in_frame`, which a caller of this method may use alike).
 
         Parameters
         ----------

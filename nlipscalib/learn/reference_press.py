@@ -74,6 +74,7 @@ def press_in_frame(calibration: np.ndarray, frame: np.ndarray, valid: np.ndarray
     """
     if calibration.shape != frame.shape or frame.shape[:2] != valid.shape or frame.shape[-1:] != (3,):
         raise ShapeError(f"frames {calibration.shape} and {frame.shape} and the gel {valid.shape} must match")
+    valid = np.asarray(valid, bool)
     gel = int(valid.sum())
     if gel == 0:
         return None
@@ -133,7 +134,9 @@ def colour_patch(calibration: np.ndarray, frame: np.ndarray, valid: np.ndarray) 
     ``REFERENCE_COLOUR_MIN``; isolated pixels are dropped (an opening)."""
     cv2 = require("cv2", "opencv-python-headless", "Checking a reference frame")
     # the gel less its outermost pixels, whose smoothed values mix in the dark beyond it
-    gel = cv2.erode(valid.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool) & valid
+    gel = cv2.erode(valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & valid
+    if not gel.any():  # a gel a few pixels across: no colour to compare
+        return gel
     old, new = (smooth_on_gel(f, valid, REFRESH_SMOOTHING_PX) for f in (calibration, frame))
     tiny = np.float32(1e-6)
     colour = np.log(np.maximum(new, tiny)) - np.log(np.maximum(old, tiny))
