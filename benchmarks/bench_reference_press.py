@@ -5,7 +5,9 @@ Each press folder given is checked against the calibration's reference frame (CA
 model was calibrated on, or a model file, whose stored reference frame is taken), as it is and aged: one LED's light
 times g (its own LED image scaled onto its colour group's share of the tri-colour frame by least squares), each colour
 group and all LEDs times g, noise of a fraction of the gel's median, and a scuff (all three colours darker over a
-Gaussian patch at the gel's centre). Undeformed frames should show no press; presses should.
+Gaussian patch at the gel's centre); a twin press (contact in its gt.npz) only as it is, red 90 % and all 80 %, a
+capture without ground truth (a sensor's or the emulator's) every variant. Undeformed frames should show no press;
+presses should.
 
 Usage: python benchmarks/bench_reference_press.py CALIBRATION FOLDER... [--leds 0.99,0.95,0.8] [--repeats 9]
 
