@@ -10,8 +10,10 @@ capture without ground truth (a sensor's or the emulator's) every variant. Undef
 presses should.
 
 Usage: python benchmarks/bench_reference_press.py CALIBRATION FOLDER... [--leds 0.99,0.95,0.8] [--repeats 9]
+       [--no-leds]
 
-Prints one line per frame (the patch's share of the gel and box, or "-") and the check's median wall and CPU time.
+Prints one line per frame (the patch's share of the gel and box, or "-") and the check's median wall and CPU time,
+the LEDs' shares (``LedShares.shares``) made in each call, as in the one check of an ``nlips infer`` run.
 """
 
 from __future__ import annotations
@@ -27,17 +29,26 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def calibration_frame(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(the calibration's linear tri-colour frame, the gel mask) of a press folder or a model file."""
+def calibration_frame(path: Path, leds: bool = True):
+    """(the calibration's linear tri-colour frame, the gel mask, its LEDs' shares or None) of a press folder or a
+    model file (``leds`` False: None, the smooth colour field alone)."""
     from nlipscalib.core.capture import load_press
+    from nlipscalib.core.leds import tricolor_groups
     from nlipscalib.learn.infer import load_tricolor
+    from nlipscalib.learn.reference_press import LedShares
 
     if path.is_file():
         from nlipscalib.learn.model import load_model
 
-        ref = load_model(path).reference
-        return ref["tricolor"].astype(np.float32), ref["valid"].astype(bool)
-    return load_tricolor(path)[0], np.isfinite(load_press(path).reference.depth)
+        model = load_model(path)
+        ref = model.reference
+        shares = LedShares.of_model(model.sensor, ref) if leds else None
+        return ref["tricolor"].astype(np.float32), ref["valid"].astype(bool), shares
+    press = load_press(path)
+    depth, normals = press.reference.depth, press.reference.normals
+    groups = np.asarray(tricolor_groups(len(press.leds)))
+    shares = LedShares(press.camera, depth, normals, tuple(press.leds), groups) if leds else None
+    return load_tricolor(path)[0], np.isfinite(depth), shares
 
 
 def one_led_dimmed(folder: Path, frame: np.ndarray, led: int, gain: float) -> np.ndarray:
@@ -88,23 +99,24 @@ def main() -> None:
     ap.add_argument("folders", type=Path, nargs="+", help="press folders to check (undeformed captures and presses)")
     ap.add_argument("--leds", default="0.99,0.95,0.8", help="gains of one LED at a time (undeformed frames only)")
     ap.add_argument("--repeats", type=int, default=9, help="timed calls of the check on the first frame")
+    ap.add_argument("--no-leds", action="store_true", help="the smooth colour field alone, without the LEDs' shares")
     args = ap.parse_args()
     from nlipscalib.learn.infer import load_tricolor
     from nlipscalib.learn.reference_press import press_in_frame
 
-    calibration, valid = calibration_frame(args.calibration)
+    calibration, valid, leds = calibration_frame(args.calibration, leds=not args.no_leds)
     gains = [float(g) for g in args.leds.split(",") if g]
     for folder in args.folders:
         frame = load_tricolor(folder)[0]
         for name, candidate in variants(folder, frame, valid, gains):
-            found = press_in_frame(calibration, candidate, valid)
+            found = press_in_frame(calibration, candidate, valid, leds)
             said = "-" if found is None else f"press {found.share:.2%} of the gel, box {found.box}"
             print(f"{folder.name} {name}: {said}", flush=True)
     first = load_tricolor(args.folders[0])[0]
     walls, cpus = [], []
     for _ in range(max(args.repeats, 1)):
         t, c = time.perf_counter(), time.process_time()
-        press_in_frame(calibration, first, valid)
+        press_in_frame(calibration, first, valid, leds)
         walls.append(time.perf_counter() - t)
         cpus.append(time.process_time() - c)
     print(

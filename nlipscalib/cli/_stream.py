@@ -381,9 +381,10 @@ def check_undeformed_frame(predictor: Predictor, frame: np.ndarray, path: str | 
     saved from them is judged against it, silently; the remedy (another frame with nothing on the gel) takes
     seconds. No clean frame was refused on the twin, the emulated camera, aged LEDs or a scuff (s34-inferref)."""
     from ..core.errors import CaptureError
-    from ..learn.reference_press import press_in_frame
+    from ..learn.reference_press import LedShares, press_in_frame
 
-    found = press_in_frame(predictor.ref_tricolor, frame, predictor.valid)
+    leds = LedShares.of_model(predictor.model.sensor, predictor.model.reference)
+    found = press_in_frame(predictor.ref_tricolor, frame, predictor.valid, leds)
     if found is None:
         return
     x, y, w, h = found.box

@@ -383,14 +383,14 @@ calibration, not a refresh."""
 REFERENCE_PRESS_SHARE = 0.0025
 """NLiPsNet's refresh (``nlips infer --reference FRAME``): a frame offered as the undeformed sensor shows a press
 when one patch of at least this share of the gel both changed by the change rule (:data:`CHANGE_NOISE_SIGMAS`) and
-changed colour beyond a smooth field (:mod:`nlipscalib.learn.reference_press`). At 160x120: twin presses 0.85-21 %
-(a 6 mm sphere 0.15 mm deep the least), clean references of other seeds, the emulated camera, one LED dimmed to
-50-95 %, a colour group to 90 %, all to 80 %, 2 % noise and a 10-25 % darker scuff 0 (benchmarks/RESULTS.md,
-s34-inferref)."""
+changed colour beyond what per-LED gains and a smooth field explain (:mod:`nlipscalib.learn.reference_press`). At
+160x120: twin and emulated presses 1.2-22 % (a 6 mm sphere 0.15 mm deep the least); 0 for clean references of other
+seeds and of the emulated camera, each LED alone at 30-99 %, a colour group at 90-95 %, all LEDs at 80 %, 1-5 %
+noise and a 10-25 % darker scuff (benchmarks/RESULTS.md, s34-inferref)."""
 REFERENCE_COLOUR_FIELD = 0.08
-"""... the smooth field an aged LED leaves in the colours: Gaussian sigma, this fraction of the image's width (0.15
-left patches up to 5 % of the gel on one LED at half its light, 0.08 at most 1.1 %: each LED's share of the light
-changes quickly near it)."""
+"""... the smooth field left in the colours once the LEDs' gains are out: Gaussian sigma, this fraction of the image's
+width (without the LEDs' shares, 0.15 left patches up to 5 % of the gel by one LED at half its light, 0.08 at most
+1.1 %)."""
 REFERENCE_COLOUR_SIGMAS = 5.0
 """... a pixel's colour stands out of that field beyond the gel's median distance by this many robust sigmas ..."""
 REFERENCE_COLOUR_MIN = 0.01

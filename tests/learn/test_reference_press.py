@@ -78,6 +78,26 @@ def test_clean_and_aged_undeformed_frames_show_no_press(twin_presses, other_seed
         assert press_in_frame(calibration, candidate, valid) is None, i
 
 
+def test_one_led_at_half_its_light_is_no_press_with_the_models_leds(trained, twin_presses, other_seed):
+    """A smooth field alone left a patch by an LED at half its light (LED 2: 2.9 % of the gel, LED 8: 2.0 %); the
+    LEDs' shares of their colour on the undeformed dome, from the model file, explain it. Presses are still found."""
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.reference_press import LedShares
+
+    calibration, valid = _frames(twin_presses)
+    model = load_model(trained)
+    leds = LedShares.of_model(model.sensor, model.reference)
+    assert leds is not None and len(leds.leds) == 12
+    frame = load_tricolor(other_seed)[0]
+    for led in (1, 7):
+        aged = _one_led_dimmed(other_seed, led, 0.5)
+        assert press_in_frame(calibration, aged, valid) is not None  # what the LEDs' shares are for
+        assert press_in_frame(calibration, aged, valid, leds) is None, led
+    assert press_in_frame(calibration, frame, valid, leds) is None
+    for name in ("press_a", HELD_OUT):
+        assert press_in_frame(calibration, load_tricolor(twin_presses / name)[0], valid, leds) is not None
+
+
 def test_a_press_on_a_sensor_whose_red_dimmed_is_still_found(twin_presses):
     """The change rule alone, against the whole gel 20 % less red, found no patch (the press hid in the drift)."""
     calibration, valid = _frames(twin_presses)
