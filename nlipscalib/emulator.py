@@ -32,6 +32,7 @@ import numpy as np
 from .core.config import from_mapping, read_config_file, to_mapping
 from .core.dome import reference_surface
 from .core.errors import ConfigError
+from .core.press_meta import EMULATOR_DEVICE
 from .core.sensor_response import SensorResponse, linear_to_srgb
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
@@ -456,7 +457,12 @@ def open_emulated_sensor(
         reference=reference_surface(scene.design),
         # the twin code and render libraries (as a rendered press records them): a session resumed after an
         # upgrade tells its earlier presses from this run's (device.session.made_otherwise_line)
-        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure, **render_identity()}
+        provenance={
+            "device": EMULATOR_DEVICE,
+            "scene": scene.to_dict(),
+            "exposure": renders.exposure,
+            **render_identity(),
+        }
         | ({"tone_curve": tone_curve} if tone_curve else {}),
     )
     return EmulatedSensor(rig, ScriptedOperator(camera, script, echo), camera, board, tricolor_level(renders))

@@ -371,8 +371,40 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
         full_frame=args.full_frame,
     )
     if getattr(args, "reference", None):  # `nlips infer --reference FRAME`: an aged sensor, refreshed
-        predictor.refresh(refreshed_reference(predictor, args.reference))
+        reference = refreshed_reference(predictor, args.reference)
+        check_undeformed_frame(predictor, reference, args.reference, force=getattr(args, "force_reference", False))
+        predictor.refresh(reference)
     return predictor
+
+
+def check_undeformed_frame(predictor: Predictor, frame: np.ndarray, path: str | Path, force: bool = False) -> None:
+    """Refuse ``--reference``'s frame ((H, W, 3) float32, linear) in one line naming it when it shows a press
+    (:func:`nlipscalib.learn.reference_press.press_in_frame` against the calibration's reference frame the model
+    carries); with ``force`` (``--force-reference``) a warning, and it is used.
+
+    Why refused, not warned: the refresh built on it carries the dent into every frame of the run, and every result
+    saved from them is judged against it, silently; the remedy (another frame with nothing on the gel) takes
+    seconds. No clean frame was refused on the twin, the emulated camera, aged LEDs or a scuff (s34-inferref)."""
+    from ..core.errors import CaptureError
+    from ..learn.reference_press import LedShares, press_in_frame
+
+    leds = LedShares.of_model(predictor.model.sensor, predictor.model.reference)
+    found = press_in_frame(predictor.ref_tricolor, frame, predictor.valid, leds)
+    if found is None:
+        return
+    x, y, w, h = found.box
+    what = (
+        f"--reference {path}: shows a press ({found.share:.1%} of the gel, pixels x {x}-{x + w - 1}, y {y}-{y + h - 1},"
+        " changed in colour from the calibration's reference as a contact changes it, not as dimmed LEDs, another "
+        "exposure or a scuffed coating do): every frame would be judged against its dent"
+    )
+    if force:
+        log.warning("%s; used anyway (--force-reference)", what)
+        return
+    raise CaptureError(
+        f"{what}; take the undeformed frame again with nothing touching the gel, or give --force-reference to use "
+        "it anyway"
+    )
 
 
 def refreshed_reference(predictor: Predictor, path: str | Path) -> np.ndarray:

@@ -126,6 +126,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "with --device and --full-frame too (applied on the device)",
     )
     p.add_argument(
+        "--force-reference",
+        action="store_true",
+        help="use --reference FRAME even when it looks pressed (refused by default: a frame whose colours changed "
+        "in one patch as a contact changes them would carry its dent into every frame; dimmed LEDs, another "
+        "exposure or a scuffed coating are not refused)",
+    )
+    p.add_argument(
         "--figures",
         choices=("none", "maps", "full"),
         help="presses and frames: figures beside each result, as `nlips solve` writes them: maps (PNG normal map, "
@@ -187,6 +194,10 @@ def run(args: argparse.Namespace) -> int:
                 "--figures is for press folders and image files: a stream with --out keeps every --every-th "
                 "frame's normal map (PNG) beside its arrays; drop it"
             )
+    if args.force_reference and not args.reference:
+        raise ConfigError(
+            "--force-reference is for --reference FRAME (an undeformed frame that looks pressed); drop it"
+        )
     check_source_arguments(args)
     check_output_arguments(args, args.out)
     if stream_input is not None:

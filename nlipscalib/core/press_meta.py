@@ -78,6 +78,28 @@ def press_source(folder: str | Path) -> str | None:
     return source if isinstance(source, str) else None
 
 
+ORIGIN_TWIN = "a twin render (nlips render, nlips dataset)"
+ORIGIN_EMULATED = "a capture of the emulated sensor (nlips capture --emulate)"
+ORIGIN_SENSOR = "a capture of a sensor (nlips capture)"
+EMULATOR_DEVICE = "emulator"
+"""meta.json ``provenance.device`` of a press the emulated sensor captured (a real sensor's names its port)."""
+
+
+def capture_origin(meta: dict) -> str | None:
+    """What made a press, in words, from its meta.json (:func:`read_meta`): :data:`ORIGIN_TWIN`,
+    :data:`ORIGIN_EMULATED` or :data:`ORIGIN_SENSOR`; None where ``provenance.source`` is missing or unknown (a
+    capture written by other software, or by hand: nothing is said of it)."""
+    provenance = meta.get("provenance")
+    if not isinstance(provenance, dict):
+        return None
+    source = provenance.get("source")
+    if source == SOURCE_TWIN:
+        return ORIGIN_TWIN
+    if source == SOURCE_SENSOR:
+        return ORIGIN_EMULATED if provenance.get("device") == EMULATOR_DEVICE else ORIGIN_SENSOR
+    return None
+
+
 def image_size(folder: str | Path) -> tuple[int, int]:
     """(width, height) in pixels of a press folder's images, from its meta.json (:func:`read_meta`'s errors)."""
     camera = Camera.from_dict(read_meta(folder)["camera"])

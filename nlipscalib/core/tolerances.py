@@ -394,6 +394,21 @@ into every frame's colours (the drifts it corrects -- LED ageing, exposure, a sc
 REFRESH_GAIN_LIMIT = 2.0
 """NLiPsNet's refresh: each pixel's gain is clipped to [1/this, this]; a sensor that changed by more needs a new
 calibration, not a refresh."""
+REFERENCE_PRESS_SHARE = 0.0025
+"""NLiPsNet's refresh (``nlips infer --reference FRAME``): a frame offered as the undeformed sensor shows a press
+when one patch of at least this share of the gel both changed by the change rule (:data:`CHANGE_NOISE_SIGMAS`) and
+changed colour beyond what per-LED gains and a smooth field explain (:mod:`nlipscalib.learn.reference_press`). At
+160x120: twin and emulated presses 1.2-22 % (a 6 mm sphere 0.15 mm deep the least); 0 for clean references of other
+seeds and of the emulated camera, each LED alone at 30-99 %, a colour group at 90-95 %, all LEDs at 80 %, 1-5 %
+noise and a 10-25 % darker scuff (benchmarks/RESULTS.md, s34-inferref)."""
+REFERENCE_COLOUR_FIELD = 0.08
+"""... the smooth field left in the colours once the LEDs' gains are out: Gaussian sigma, this fraction of the image's
+width (without the LEDs' shares, 0.15 left patches up to 5 % of the gel by one LED at half its light, 0.08 at most
+1.1 %)."""
+REFERENCE_COLOUR_SIGMAS = 5.0
+"""... a pixel's colour stands out of that field beyond the gel's median distance by this many robust sigmas ..."""
+REFERENCE_COLOUR_MIN = 0.01
+"""... and by at least this much (log ratio, about 1 % of a colour's share)."""
 FRAME_BLACK_FRACTION = 0.01
 """NLiPsNet: a frame that differs from the calibration's reference frame over most of the gel
 (:data:`FRAME_MISMATCH_FRACTION`) and whose median brightness on the gel is at most this fraction of the

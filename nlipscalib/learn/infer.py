@@ -161,7 +161,9 @@ class Predictor:
         noise is not copied into every frame). A 10 % dimmer LED group cost 6-7 deg of contact error, 0.0-0.1
         after a refresh (benchmarks/RESULTS.md, s28-ageing). A gel that swelled changes the shading itself, not
         only its scale: 0.15 mm of radius cost 0.35 deg on one twin press, 0.05 after a refresh; more than that
-        was not measured, and a new calibration is the sure remedy.
+        was not measured, and a new calibration is the sure remedy. A ``reference`` taken while something pressed
+        the gel would carry its dent into every frame: ``nlips infer --reference`` refuses one
+        (:func:`.reference_press.press_in_frame`, which a caller of this method may use alike).
 
         Parameters
         ----------
@@ -388,13 +390,9 @@ class Predictor:
 def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32: ``frame`` Gaussian-smoothed over the gel only (normalised by the gel's own weight, so the
     dark off-gel pixels do not darken its rim), :data:`~nlipscalib.core.tolerances.REFRESH_SMOOTHING_PX`."""
-    import cv2
+    from .reference_press import smooth_on_gel
 
-    sigma = REFRESH_SMOOTHING_PX
-    weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
-    blurred = cv2.GaussianBlur(np.where(valid[..., None], frame, 0).astype(np.float32), (0, 0), sigma)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(weight[..., None] > 0, blurred / weight[..., None], 0).astype(np.float32)
+    return smooth_on_gel(frame, valid, REFRESH_SMOOTHING_PX)
 
 
 def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) -> str:

@@ -161,8 +161,36 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
         _check_leds_sensor(folder, meta, settings)
     if settings.reference is not None:  # another sensor's capture: refused now, not after "re-solving" is logged
         check_undeformed(read_optics(folder), read_optics(settings.reference))
-        if why := twin_reference_problem(settings.reference, read_meta(settings.reference), folder, meta):
+        reference_meta = read_meta(settings.reference)
+        if why := twin_reference_problem(settings.reference, reference_meta, folder, meta):
             raise CaptureError(why)
+        warn_other_origin(settings.reference, reference_meta, folder, meta)
+
+
+def warn_other_origin(reference: Path, reference_meta: dict, press: Path, press_meta: dict) -> None:
+    """One warning, once per command and pair of origins (core.said_once), when the undeformed capture ``reference``
+    and ``press`` were made by different sources (:func:`~nlipscalib.core.press_meta.capture_origin`: a twin render,
+    the emulated sensor, a sensor); nothing when either records none (a capture of other software, or by hand).
+
+    Why a warning, not a refusal: a lab may solve its sensor's presses against a twin reference on purpose (no
+    undeformed capture yet) and the twin's presses against its sensor's to compare; but a twin press solved against
+    the emulated sensor's reference (noise, lens, exposure of another path) was solved without a word, its
+    interreflection term and contact measured against a light that was not its own."""
+    from ..core.press_meta import capture_origin
+    from ..core.said_once import first_time
+
+    ours, theirs = capture_origin(press_meta), capture_origin(reference_meta)
+    if ours is None or theirs is None or ours == theirs:
+        return
+    if first_time(f"other origin\0{Path(reference).resolve()}\0{ours}"):
+        log.warning(
+            "%s: %s, solved against the undeformed capture %s, %s: its light (interreflection term, contact) may "
+            "not be the press's; give an undeformed capture made as the press was (said once)",
+            press,
+            ours,
+            reference,
+            theirs,
+        )
 
 
 def twin_reference_problem(

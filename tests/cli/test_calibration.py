@@ -96,6 +96,27 @@ def test_presses_of_another_dome_than_the_reference_are_one_line_naming_the_surf
     assert not (press / "nlips").exists() and not (root / "calibration").exists()
 
 
+def test_presses_of_another_source_than_the_reference_are_one_warning(tmp_path, caplog):
+    """Twin presses calibrated against the emulated sensor's undeformed capture: one line for both presses (said
+    once per command), and the calibration goes on (a lab may mix them on purpose)."""
+    root = tmp_path / "presses"
+    for name, kind in (("reference", "none"), ("press_0001", "sphere"), ("press_0002", "cube")):
+        folder = synth.make_press(root / name, kind, size=SIZE)
+        meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
+        emulated = {"source": "device", "device": "emulator"}
+        meta["provenance"] = emulated if name == "reference" else {"source": "sim"}
+        (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    caplog.set_level(logging.WARNING)
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+    lines = [r.getMessage() for r in caplog.records if "solved against the undeformed capture" in r.getMessage()]
+    assert len(lines) == 1, lines
+    assert (
+        f"a twin render (nlips render, nlips dataset), solved against the undeformed capture {root / 'reference'}, "
+        in lines[0]
+    )
+    assert "a capture of the emulated sensor (nlips capture --emulate)" in lines[0]
+
+
 def test_calibrate_leds_help_names_both_commands(capsys):
     with pytest.raises(SystemExit):
         main(["calibrate-leds", "--help"])

@@ -585,6 +585,48 @@ def test_a_twin_reference_rendered_with_other_light_settings_is_refused_in_one_l
     assert (press / "nlips" / "result.npz").is_file()
 
 
+def _record_source(folder, **provenance) -> None:
+    """Record in ``folder``'s meta.json what made it (``provenance``; none given: no provenance, as a capture
+    written by other software)."""
+    path = folder / "meta.json"
+    meta = json.loads(path.read_text(encoding="utf-8"))
+    meta["provenance"] = provenance or None
+    path.write_text(json.dumps(meta), encoding="utf-8")
+
+
+def test_a_press_solved_against_an_undeformed_capture_of_another_source_is_one_warning(data, tmp_path, caplog):
+    """A twin press solved against the emulated sensor's reference (s33-e2e records each capture's source) was
+    solved without a word; a lab may mix them on purpose, so it is said, once, and the solve goes on. Two captures
+    of one source, or one that records none (other software's), say nothing."""
+    root, cfg = data
+    press = root / "press_a"
+    reference = synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+    caplog.set_level(logging.WARNING)
+    cases = (
+        ({"source": "sim"}, {"source": "device", "device": "emulator"}, "a capture of the emulated sensor"),
+        ({"source": "device", "device": {"port": "/dev/ttyACM0"}}, {"source": "sim"}, "a twin render"),
+        (
+            {"source": "device", "device": "emulator"},
+            {"source": "device", "device": {"port": "COM3"}},
+            "a capture of a sensor",
+        ),
+        ({"source": "sim"}, {"source": "sim"}, None),
+        ({"source": "sim"}, {}, None),
+    )
+    for ours, theirs, said in cases:
+        _record_source(press, **ours)
+        _record_source(reference, **theirs)
+        args = ["solve", str(press), "--reference", str(reference), "--config", str(cfg), "--no-progress"]
+        assert main(args) == 0
+        lines = [r.getMessage() for r in caplog.records if "solved against the undeformed capture" in r.getMessage()]
+        if said is None:
+            assert lines == [], (ours, theirs, lines)
+        else:
+            assert len(lines) == 1 and lines[0].startswith(f"{press}: "), lines
+            assert f"solved against the undeformed capture {reference}, {said}" in lines[0], lines
+        caplog.clear()
+
+
 def test_a_folders_default_worker_count_is_one_per_two_cores_lowered_to_memory(data, monkeypatch):
     """``nlips solve FOLDER`` ran one worker whatever the cores. Now one per two usable cores (each press already
     solves on two threads: one worker on a 2-core machine, as before), fewer where memory holds fewer; ``--workers``
