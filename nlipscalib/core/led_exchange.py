@@ -108,8 +108,8 @@ def exchanged_in_shading(corr: ArrayLike) -> list[list[int]]:
     :data:`~nlipscalib.core.tolerances.MODEL_EXCHANGE_MIN_GAIN` at least. Why relative to the others' misfit, not
     by a fixed gain as between two captures: an LED model off the sensor (LEDs 3 mm from their places, in random
     directions) lets two neighbours' images gain up to 0.17 over their own LEDs' light, as much as some exchanges
-    gain (0.15-0.30 on the default twin, 0.04-0.33 on the capsule's denser ring), but then every image misfits its
-    own LED alike: such cycles gain at most 3.3 times the others' median misfit, an exchange on a sensor its model
+    gain (0.15-0.29 on the default twin, 0.04-0.28 on the capsule's denser ring), but then every image misfits its
+    own LED alike: such cycles gain at most 3.8 times the others' median misfit, an exchange on a sensor its model
     describes 8 times or more (benchmarks/RESULTS.md, s34-solveswap).
 
     Parameters

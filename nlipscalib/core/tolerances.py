@@ -832,7 +832,7 @@ MODEL_EXCHANGE_FACTOR = 5.0
 image of the cycle correlates better with the LED it shows than with its own by at least this many times the other
 images' median misfit to their own LEDs (one minus the correlation; :func:`nlipscalib.core.led_exchange.
 exchanged_in_shading`). The twin's presses with two neighbours' images exchanged: 8.1 times or more (the coin press,
-640x480, one bounce; 35 on a 320x240 sphere); an LED model 3-4 mm off the sensor, 200 random draws each: 3.3 at
+640x480, one bounce; 35 on a 320x240 sphere); an LED model 1-4 mm off the sensor, 200 random draws each: 3.8 at
 most, where a gain of :data:`IMAGE_EXCHANGE_GAIN` alone named 21-68 cycles of 200 (benchmarks/RESULTS.md,
 s34-solveswap)."""
 MODEL_EXCHANGE_MIN_GAIN = 0.02
