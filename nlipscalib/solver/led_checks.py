@@ -212,8 +212,10 @@ def _model_exchanges(
 ) -> list[ExchangedImages]:
     """The LED images of the LEDs ``judged`` (0-based) exchanged with each other's
     (:func:`nlipscalib.core.led_exchange.exchanged_in_shading` of ``corr``, (len(live), len(live)): each live
-    image's correlation with each live LED's modelled light), but for exchanges holding a ``misplaced`` LED (far
-    apart: reordered or warned about as such).
+    image's correlation with each live LED's modelled light), but for exchanges of ``misplaced`` LEDs only (far
+    apart: reordered or warned about as such). A cycle of three neighbours holds one image two LEDs from its own,
+    misplaced, and the misplaced images' check gives no order for it (not a closed cycle of misplaced images): only
+    its warning said it (the twin's sphere and cube presses, led_03-05 in a cycle); now it is refused as a cycle.
 
     Why: neighbours light the dome alike (their images correlate 0.8 with each other's LED's light, above the 0.5 of
     :data:`MATCH_CORRELATION`), so a press with led_03.png and led_04.png exchanged was solved without a word; the
@@ -226,15 +228,16 @@ def _model_exchanges(
     found = []
     for cycle in exchanged_in_shading(among):
         leds = [judged[k] for k in cycle]
-        if set(leds) & set(misplaced):
+        if set(leds) <= set(misplaced):  # far apart, each warned about (and reordered, where clean) as such
             continue
         said = []
         for n, k in enumerate(cycle):
             m = cycle[(n + 1) % len(cycle)]
             own, other = judged[k] + 1, judged[m] + 1
             said.append(f"{names[judged[k]]} {among[k, k]:.2f} with LED {own}'s, {among[k, m]:.2f} with LED {other}'s")
+        whose = "the other's" if len(leds) == 2 else "the next one's"
         line = (
-            f"{press.folder}: {_listed(names, leds)} look exchanged (each correlates with the other's modelled "
+            f"{press.folder}: {_listed(names, leds)} look exchanged (each correlates with {whose} modelled "
             f"light of the undeformed dome better than with its own LED's: {'; '.join(said)}): their images were "
             "captured in each other's place (the LED wiring, the controller's LED order or the images' order)"
         )

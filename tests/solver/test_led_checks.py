@@ -107,6 +107,9 @@ def test_neighbouring_led_images_exchanged_are_refused_naming_them_unless_kept_a
     assert kept.report["leds_exchanged"] == [[2, 3]]
     (said,) = [note for note in kept.report["warnings"] if "look exchanged" in note]
     assert said.endswith("solved as captured (--keep-led-order; report.json leds_exchanged)") and said in caplog.text
+    cycle = _press(tmp_path, "cycle", lambda lin: lin[[0, 1, 3, 4, 2, *range(5, 12)]])  # 3 shows 4, 4 5, 5 3
+    with pytest.raises(CaptureError, match=r"led_03.png, led_04.png and led_05.png \(a cycle\) look exchanged"):
+        solve_press(cycle, options=options)  # led_05.png two LEDs off: misplaced, but no clean order to solve in
     clean = solve_press(_press(tmp_path, "clean"), options=options)
     assert "leds_exchanged" not in clean.report
     assert not any("exchanged" in note for note in clean.report.get("warnings", []))
