@@ -332,7 +332,7 @@ Why refused, where images far apart that show other LEDs' light are solved in th
 (:func:`.led_checks.detected_order`): those correlate 0.98 with the LED they show and below 0.5 with their own; a
 neighbour's light differs less from an LED's own than an LED model 3 mm off the sensor can (the evidence:
 :data:`~nlipscalib.core.tolerances.MODEL_EXCHANGE_FACTOR`), so the images' order is the user's to fix, not the
-solve's to guess; solved as captured, the twin's sphere press lost its auto box and 0.3 deg of the whole gel."""
+solve's to guess; solved as captured, the twin's sphere presses lost their auto box and 0.3-0.5 deg of the whole gel."""
 EXCHANGE_KEPT = f"; solved as captured ({KEEP_ORDER_FLAG}; report.json leds_exchanged)"
 """The tail of the warning of :func:`_exchanged_notes` with ``--keep-led-order``."""
 
