@@ -109,7 +109,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         dest="reorder_leds",
         action="store_false",
         help="solve LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
-        "captured; by default they are solved in the order they show, with a warning and report.json's led_order",
+        "captured; by default they are solved in the order they show, with a warning and report.json's led_order. "
+        "Neighbours' images exchanged (their light too alike to reorder by; or the --reference capture's) are "
+        "refused by default, naming both images; with this flag solved as captured, with a warning and report.json's "
+        "leds_exchanged",
     )
     add_led_model(p)
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")

@@ -9,8 +9,10 @@ benchmarks/RESULTS.md, s33-ledswap). The best one-to-one assignment of the fitte
 (:func:`scipy.optimize.linear_sum_assignment`, the Hungarian method SciPy keeps) names such an exchange when it is not
 the identity and explains the misfit by a wide margin (:func:`exchanged_leds`). Several captures calibrated together
 are first compared image by image (:func:`exchanged_images`): one holding its images in another order than the
-first is told by the images alone. In core beside the other LED comparisons (:mod:`nlipscalib.core.led_change`); the
-solver's calibration wires both.
+first is told by the images alone. A solve's press, without an LED fit, is told by its images against its LED model's
+light (:func:`exchanged_in_shading`), and against the undeformed capture it is solved with by :func:`exchanged_images`.
+In core beside the other LED comparisons (:mod:`nlipscalib.core.led_change`); the solver's calibration and solve wire
+them.
 """
 
 from __future__ import annotations
@@ -87,15 +89,67 @@ def exchanged_images(reference: np.ndarray, images: np.ndarray) -> list[list[int
     list of list of int -- each exchange's images (0-based) in ``images``, from its lowest, in the assignment's order
     (``[2, 3]``: image 3 shows what ``reference``'s image 4 shows, and image 4 what its image 3 shows); empty when none.
     """
-    from scipy.optimize import linear_sum_assignment
-
     count = len(reference)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): no correlation
-        corr = np.nan_to_num(np.corrcoef(images, reference)[:count, count:], nan=-1.0)
+        corr = np.corrcoef(images, reference)[:count, count:]
+    assigned, gain = _best_assignment(corr)
+    return _cycles(assigned, gain >= tolerances.IMAGE_EXCHANGE_GAIN)
+
+
+def exchanged_in_shading(corr: ArrayLike) -> list[list[int]]:
+    """The cycles of LED images that show other LEDs' modelled light (the LED model's shading of the undeformed
+    dome) better than their own's, by more than the model's own error explains: one capture's images against its
+    LED model, without another capture to compare with (``nlips solve``).
+
+    As :func:`exchanged_images`, on the correlations of each image with each LED's modelled light: a cycle of the
+    assignment at the largest summed correlation is an exchange when each of its images correlates better with the
+    LED it is assigned than with its own by :data:`~nlipscalib.core.tolerances.MODEL_EXCHANGE_FACTOR` times the
+    median misfit of the other images to their own LEDs (one minus their correlation), and by
+    :data:`~nlipscalib.core.tolerances.MODEL_EXCHANGE_MIN_GAIN` at least. Why relative to the others' misfit, not
+    by a fixed gain as between two captures: an LED model off the sensor (LEDs 3 mm from their places, in random
+    directions) lets two neighbours' images gain up to 0.17 over their own LEDs' light, as much as some exchanges
+    gain (0.15-0.29 on the default twin, 0.04-0.28 on the capsule's denser ring), but then every image misfits its
+    own LED alike: such cycles gain at most 3.8 times the others' median misfit, an exchange on a sensor its model
+    describes 8 times or more (benchmarks/RESULTS.md, s34-solveswap).
+
+    Parameters
+    ----------
+    corr : (L, L) float -- the correlation over the gel of each LED image (rows, the capture's order) with each
+        LED's modelled light (columns, the same LEDs); NaN: no correlation (a flat image).
+
+    Returns
+    -------
+    list of list of int -- each exchange's images (0-based rows of ``corr``), from its lowest, in the assignment's
+    order (``[2, 3]``: image 3 shows LED 4's light and image 4 LED 3's); empty when none, or when every image is in
+    one (no others to measure the model's error on).
+    """
+    assigned, gain = _best_assignment(corr)
+    misfit = 1.0 - np.diag(np.nan_to_num(np.asarray(corr, np.float64), nan=-1.0))
+    found = []
+    for cycle in _cycles(assigned, gain >= tolerances.MODEL_EXCHANGE_MIN_GAIN):
+        others = np.delete(misfit, cycle)
+        if others.size and gain[cycle].min() >= tolerances.MODEL_EXCHANGE_FACTOR * np.median(others):
+            found.append(cycle)
+    return found
+
+
+def _best_assignment(corr: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Each image's (row's) assigned column of ``corr`` ((L, L) correlations, NaN taken as -1) one-to-one at the
+    largest summed correlation (:func:`scipy.optimize.linear_sum_assignment`), and what each gains by it over its
+    own column: two (L,) arrays, int and float.
+
+    When every row correlates best with its own column the identity is that assignment (it reaches the sum of the
+    rows' maxima, which no assignment exceeds), and SciPy is not asked: importing :mod:`scipy.optimize` took ~0.5 s
+    that a clean press's ``nlips solve`` never otherwise spends (:mod:`nlipscalib.solver.led_fit` says so too)."""
+    corr = np.nan_to_num(np.asarray(corr, np.float64), nan=-1.0)
+    own = np.arange(len(corr))
+    if np.array_equal(corr.argmax(axis=1), own):
+        return own, np.zeros(len(corr))
+    from scipy.optimize import linear_sum_assignment
+
     rows, place = linear_sum_assignment(corr, maximize=True)
     assigned = place[np.argsort(rows)]
-    gain = corr[np.arange(count), assigned] - np.diag(corr)
-    return _cycles(assigned, gain >= tolerances.IMAGE_EXCHANGE_GAIN)
+    return assigned, corr[np.arange(len(corr)), assigned] - np.diag(corr)
 
 
 def _cycles(assigned: np.ndarray, exchange: np.ndarray) -> list[list[int]]:

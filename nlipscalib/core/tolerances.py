@@ -856,6 +856,18 @@ another capture's images of other LEDs than with their own LED's (over the gel) 
 (:func:`nlipscalib.core.led_exchange.exchanged_images`). The twin's 160x120 undeformed dome, seeds 7 and 8: an LED's
 images 0.9987 or more, two neighbours' 0.83 at most; led_03.png and led_04.png exchanged: 0.71 with their own, 0.999
 with each other's (gain 0.29; benchmarks/RESULTS.md, s33-ledswap)."""
+MODEL_EXCHANGE_FACTOR = 5.0
+"""``nlips solve``: LED images exchanged are told against the LED model's light of the undeformed dome when each
+image of the cycle correlates better with the LED it shows than with its own by at least this many times the other
+images' median misfit to their own LEDs (one minus the correlation; :func:`nlipscalib.core.led_exchange.
+exchanged_in_shading`). The twin's presses with two neighbours' images exchanged: 8.1 times or more (the coin press,
+640x480, one bounce; 35 on a 320x240 sphere); an LED model 1-4 mm off the sensor, 200 random draws each: 3.8 at
+most, where a gain of :data:`IMAGE_EXCHANGE_GAIN` alone named 21-68 cycles of 200 (benchmarks/RESULTS.md,
+s34-solveswap)."""
+MODEL_EXCHANGE_MIN_GAIN = 0.02
+"""... and by at least this much (correlation): a floor under a model that fits the images almost exactly. The
+capsule's ring (3.4 mm apart): its least distinct neighbours exchanged gain 0.039 (18 times the others' misfit);
+a clean press's images correlate with any other LED's light 0.16 less than with their own."""
 
 GEL_FRAME_SHARE_FOR_DISKS = 0.95
 """A whole-frame solve with point LEDs whose gel covers less of the frame than this (the camera sees past the gel:

@@ -111,17 +111,39 @@ class MeasuredGains:
     """(len(live),) float64 -- their light over the median LED's."""
 
 
+class ExchangedImages(NamedTuple):
+    """LED images captured in each other's place: neighbours', whose light is alike (:func:`led_check_measured`
+    against the LED model, :func:`reference_exchanges` against the undeformed capture)."""
+
+    leds: tuple[int, ...]
+    """The exchange's LEDs (0-based), in the assignment's order: the image of ``leds[k]`` shows the light of
+    ``leds[k + 1]`` (the last's, the first's)."""
+    line: str
+    """What was found, naming the capture and the files, without what is done about it (the solve's)."""
+    against: str = "model"
+    """What told it: "model" (the LED model's light) or "reference" (the undeformed capture's images)."""
+
+
 def led_check_measured(
     press: Press, leds: Sequence[Led], live: Sequence[int]
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
+) -> tuple[
+    list[str],
+    list[int],
+    list[int],
+    list[int] | None,
+    MeasuredGains | None,
+    list[DarkBand | LaggedBand],
+    list[ExchangedImages],
+]:
     """:func:`led_check`, the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
-    when it sampled none), and the LED images' bands whose samples a solve leaves out for that LED
+    when it sampled none), the LED images' bands whose samples a solve leaves out for that LED
     (:func:`.dark_band_mask`; the LED itself is kept): dark bands (:func:`_dark_rows`: rows or columns read while
     the LED was off), then lagged bands (:func:`.lagged_bands`: read before the LED switched, the previous LED's
-    light)."""
+    light), and the images exchanged with a neighbour's (:func:`_model_exchanges`: their light too alike for the
+    misplaced images' check; not among those)."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], [], None, None, []
+        return [], [], [], None, None, [], []
     names = image_names(press)
     count = len(live)
     said, repeated, lagged, everywhere = _repeated_line(press, names)
@@ -134,7 +156,7 @@ def led_check_measured(
     image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, count)
-        return _said_repeated(said, left_out) + lagged_notes + jpeg_notes, left_out, [], None, None, list(lagged)
+        return _said_repeated(said, left_out) + lagged_notes + jpeg_notes, left_out, [], None, None, list(lagged), []
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
@@ -180,7 +202,104 @@ def led_check_measured(
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     measured = MeasuredGains(tuple(live), relative)
-    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, [*dark, *lagged]
+    exchanged = _model_exchanges(press, names, corr, [live[k] for k in judged], live, misplaced)
+    order = detected_order(shows, len(press.leds))
+    return notes, left_out, misplaced, order, measured, [*dark, *lagged], exchanged
+
+
+def _model_exchanges(
+    press: Press, names: list[str], corr: np.ndarray, judged: list[int], live: list[int], misplaced: list[int]
+) -> list[ExchangedImages]:
+    """The LED images of the LEDs ``judged`` (0-based) exchanged with each other's
+    (:func:`nlipscalib.core.led_exchange.exchanged_in_shading` of ``corr``, (len(live), len(live)): each live
+    image's correlation with each live LED's modelled light), but for exchanges of ``misplaced`` LEDs only (far
+    apart: reordered or warned about as such). A cycle of three neighbours holds one image two LEDs from its own,
+    misplaced, and the misplaced images' check gives no order for it (not a closed cycle of misplaced images): only
+    its warning said it (the twin's sphere and cube presses, led_03-05 in a cycle); now it is refused as a cycle.
+
+    Why: neighbours light the dome alike (their images correlate 0.8 with each other's LED's light, above the 0.5 of
+    :data:`MATCH_CORRELATION`), so a press with led_03.png and led_04.png exchanged was solved without a word; the
+    twin's 320x240 sphere, --roi auto: its box widened to the whole gel, 1.09 deg there where the clean press's whole
+    gel solves to 0.80 (benchmarks/RESULTS.md, s34-solveswap)."""
+    from ..core.led_exchange import exchanged_in_shading
+
+    at = [live.index(i) for i in judged]
+    among = corr[np.ix_(at, at)]
+    found = []
+    for cycle in exchanged_in_shading(among):
+        leds = [judged[k] for k in cycle]
+        if set(leds) <= set(misplaced):  # far apart, each warned about (and reordered, where clean) as such
+            continue
+        said = []
+        for n, k in enumerate(cycle):
+            m = cycle[(n + 1) % len(cycle)]
+            own, other = judged[k] + 1, judged[m] + 1
+            said.append(f"{names[judged[k]]} {among[k, k]:.2f} with LED {own}'s, {among[k, m]:.2f} with LED {other}'s")
+        whose = "the other's" if len(leds) == 2 else "the next one's"
+        line = (
+            f"{press.folder}: {_listed(names, leds)} look exchanged (each correlates with {whose} modelled "
+            f"light of the undeformed dome better than with its own LED's: {'; '.join(said)}): their images were "
+            "captured in each other's place (the LED wiring, the controller's LED order or the images' order)"
+        )
+        found.append(ExchangedImages(tuple(leds), line))
+    return found
+
+
+def _listed(names: list[str], leds: Sequence[int]) -> str:
+    """The files of the LEDs ``leds`` (0-based) for a line: "a and b", or "a, b and c (a cycle)"."""
+    files = [names[i] for i in leds]
+    return " and ".join(files) if len(files) == 2 else ", ".join(files[:-1]) + f" and {files[-1]} (a cycle)"
+
+
+def reference_exchanges(
+    press: Press,
+    reference: Press,
+    samples: tuple[np.ndarray, np.ndarray] | None,
+    said: Sequence[int] = (),
+    fitting: Sequence[int] = (),
+) -> list[ExchangedImages]:
+    """The press's LED images that hold the light of other LEDs' images of the undeformed capture it is solved with
+    (:func:`nlipscalib.core.led_exchange.exchanged_images` on ``samples``, :func:`drift_samples` of the two: the
+    ones :func:`exposure_ratio` is then given), but for exchanges holding an LED of ``said`` (0-based: the press's
+    own images already named as showing other LEDs' light); [] when none, or when the two cannot be compared
+    (``samples`` None). ``fitting``: the LEDs (0-based) whose press images the LED model's check found showing their
+    own light: an exchange of only those is said to be likelier the undeformed capture's.
+
+    Why: the press and its undeformed capture in different LED orders (either one's images exchanged) solve against
+    light that is not their LEDs': the twin's 320x240 sphere with led_03.png and led_04.png exchanged against a clean
+    capture, --roi auto, said only that it left 10227 pixels out along the gel's edge (benchmarks/RESULTS.md,
+    s34-solveswap). One LED's images correlate 0.96 or more over the gel of a press and its undeformed capture (the
+    twin's coin press, 640x480), neighbours' 0.83 at most: the images alone tell, whatever the LED model."""
+    from ..core.led_exchange import exchanged_images
+
+    if samples is None:
+        return []
+    now, before = (values.mean(-1) for values in samples)
+    found = []
+    for cycle in exchanged_images(before, now):
+        if set(cycle) & set(said):
+            continue
+        count = len(cycle)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = np.corrcoef(now[cycle], before[cycle])[:count, count:]
+        names, theirs = image_names(press), image_names(reference)
+        shown = [cycle[(n + 1) % count] for n in range(count)]
+        own = " / ".join(f"{corr[n, n]:.2f}" for n in range(count))
+        other = " / ".join(f"{corr[n, (n + 1) % count]:.2f}" for n in range(count))
+        odd = (
+            f"the press's images show their own LEDs' modelled light: {reference.folder}'s are the likelier exchanged"
+            if set(cycle) <= set(fitting)
+            else "either one's images exchanged"
+        )
+        line = (
+            f"{press.folder}: {_listed(names, cycle)} hold the light {reference.folder}'s "
+            f"{' and '.join(theirs[j] for j in shown)} hold (correlation over the gel {own} with the undeformed "
+            f"capture's images of their own LEDs, {other} with those): the press and the undeformed capture it is "
+            "solved with hold their LED images in different orders (the LED wiring, the controller's LED order or "
+            f"the images' order changed between them; {odd})"
+        )
+        found.append(ExchangedImages(tuple(cycle), line, "reference"))
+    return found
 
 
 def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int], mostly_dark: bool = False) -> list[DarkBand]:
@@ -748,35 +867,30 @@ def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
     return None if ratio is None else ratio / np.median(ratio)
 
 
-def exposure_ratio(press: Press, reference: Press, bands: Sequence[DarkBand | LaggedBand] = ()) -> np.ndarray | None:
+def exposure_ratio(
+    press: Press,
+    reference: Press,
+    bands: Sequence[DarkBand | LaggedBand] = (),
+    samples: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray | None:
     """Each LED image's brightness against the undeformed capture's of the same LED, per channel: (L, 3) float64
     ratios (the median over the gel of the pixels' ratios), 1 where the two were taken alike; None without a
     surface, or with other image sizes or LED counts. ``bands``: the LED images' dark or lagged bands
     (:func:`led_check_measured`'s), their samples left out of that LED's median (:func:`.dark_band_mask`): there
     the image holds no light of its LED (the twin's sphere press with LED 5's columns 0-209 from LED 4 measured
     LED 5 at 0.98, and the solve rescaled its image by it).
+    ``samples``: :func:`drift_samples` of the two, when taken already (None: taken here).
 
     Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
     own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
     balance per image: "--roi auto found no contact ... the LED model does not fit this sensor"). A press differs
     from the undeformed capture only in its contact, so the median over the gel of each LED's ratio is that LED's
     exposure change."""
-    if press.reference is None or reference.camera.shape != press.camera.shape:
+    samples = drift_samples(press, reference) if samples is None else samples
+    if samples is None:
         return None
-    if len(reference.leds) != len(press.leds):
-        return None
-    index = np.flatnonzero(np.isfinite(press.reference.depth))
-    index = index[:: max(1, index.size // CHECK_PIXELS)]
-    now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
-
-    def sampled() -> np.ndarray:
-        return reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
-
-    # kept on disk under the undeformed capture's bytes, as its other results: a warm solve never decodes it
-    where = hashlib.sha256(index.tobytes()).hexdigest()[:16]
-    before = reuse.reused(
-        "drift reference", (reference.images_digest(), reference.response, where), sampled, persist=True
-    )
+    now, before = samples
+    index = _drift_index(press)
     lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
     if bands:
         banded = sorted({band.index for band in bands})
@@ -788,6 +902,36 @@ def exposure_ratio(press: Press, reference: Press, bands: Sequence[DarkBand | La
         [[np.median(now[k, lit[k, :, c], c] / before[k, lit[k, :, c], c]) for c in range(3)] for k in range(len(now))]
     )
     return ratio
+
+
+def _drift_index(press: Press) -> np.ndarray:
+    """(n,) int -- the flat gel pixels :func:`exposure_ratio` compares a press and its undeformed capture on: every
+    k-th of the press's surface, about :data:`CHECK_PIXELS`."""
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
+    return index[:: max(1, index.size // CHECK_PIXELS)]
+
+
+def drift_samples(press: Press, reference: Press) -> tuple[np.ndarray, np.ndarray] | None:
+    """The press's and the undeformed capture's linear LED images at :func:`_drift_index`: two (L, n, 3) float64
+    arrays, the capture's kept as its other results are (one decoding a session); None without a surface, or with
+    other image sizes or LED counts. Taken once a solve, for :func:`reference_exchanges` and :func:`exposure_ratio`:
+    the capture's key (its images' digest) took ~50 ms of a 640x480 capture's each time on the loaded 2-core VM."""
+    if press.reference is None or reference.camera.shape != press.camera.shape:
+        return None
+    if len(reference.leds) != len(press.leds):
+        return None
+    index = _drift_index(press)
+    now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    def sampled() -> np.ndarray:
+        return reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    # kept on disk under the undeformed capture's bytes, as its other results: a warm solve never decodes it
+    where = hashlib.sha256(index.tobytes()).hexdigest()[:16]
+    before = reuse.reused(
+        "drift reference", (reference.images_digest(), reference.response, where), sampled, persist=True
+    )
+    return now, before
 
 
 def reference_gain(ratio: np.ndarray) -> np.ndarray:

@@ -64,8 +64,10 @@ from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturat
 from .image_stats import led_levels, lit_leds
 from .interreflection import compensate
 from .led_checks import (
+    ExchangedImages,
     MeasuredGains,
     dark_rows,
+    drift_samples,
     exposure_drift_note,
     exposure_ratio,
     image_names,
@@ -73,6 +75,7 @@ from .led_checks import (
     led_gains,
     linearity_notes,
     model_gain_check,
+    reference_exchanges,
     reference_gain,
     reference_gain_note,
     reorder_note,
@@ -153,12 +156,20 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     """:func:`solve_press`'s body on a loaded press: the LED checks, the solve and its report."""
     keep_order = not kwargs.pop("reorder_leds", True)
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
-    led_notes, left_out, misplaced, order, measured, dark = checks
+    led_notes, left_out, misplaced, order, measured, dark, exchanged = checks
     if order is not None and not keep_order:  # the images' own order: the physics is right again
-        press, kwargs, led_notes, left_out, misplaced, measured, dark = _in_detected_order(press, kwargs, order)
+        press, kwargs, checks = _in_detected_order(press, kwargs, order)
+        led_notes, left_out, misplaced, measured, dark, exchanged = checks
     else:
         for note in led_notes:
             log.warning("%s", note)
+    samples = None  # the press's and the undeformed capture's images on the gel: their order, then the drift
+    if isinstance(kwargs.get("indirect"), Press):  # the undeformed capture's images in another order
+        samples = drift_samples(press, kwargs["indirect"])
+        named = [*misplaced, *(i for found in exchanged for i in found.leds)]
+        fitting = measured.live if measured is not None else ()
+        exchanged += reference_exchanges(press, kwargs["indirect"], samples, named, fitting)
+    led_notes += _exchanged_notes(exchanged, keep_order)
     if misplaced and kwargs.get("check_sensor", True):  # out of order: they misfit any description (their warning)
         kwargs["check_sensor"] = None
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
@@ -176,7 +187,7 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
         # an LED's dark or lagged band (in the press or the undeformed capture) holds no light of it
-        ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark)
+        ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark, samples)
         if ratio is not None and repeated_out:  # another LED's light there: no verdict, the LED is left out below
             ratio[repeated_out] = 1.0
         gains = None if ratio is None else led_gains(ratio, misplaced)
@@ -260,6 +271,8 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     if order is not None:
         result.report["led_order"] = order if not keep_order else list(range(len(order)))
         result.report["leds_reordered"] = not keep_order
+    if exchanged:  # solved as captured (--keep-led-order): which
+        result.report["leds_exchanged"] = [list(found.leds) for found in exchanged]
     if led_notes:
         result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
@@ -300,15 +313,49 @@ def _not_said_again(said: Sequence[str]) -> Iterator[None]:
 
 KEEP_ORDER_FLAG = "--keep-led-order"
 """The command-line flag that solves LED images out of order as captured (``reorder_leds=False``)."""
+EXCHANGE_REFUSED = {
+    "model": (
+        f"; not solved: put the images in the LEDs' order (their files, or images.leds in meta.json) and run again, "
+        f"or pass {KEEP_ORDER_FLAG} to solve them as captured (right only when the LED model misplaces those LEDs: "
+        "calibrate them, nlips calibrate-leds, and solve with --leds FILE)"
+    ),
+    "reference": (
+        "; not solved: put the exchanged capture's images in the LEDs' order (their files, or images.leds in "
+        f"meta.json) and run again, or pass {KEEP_ORDER_FLAG} to solve them as captured"
+    ),
+}
+"""The tail of the solve's refusal of LED images exchanged with a neighbour's (:func:`_exchanged_notes`), as ``nlips
+calibrate-leds`` refuses them (:data:`.calibrate.EXCHANGE_REFUSED`), by what told it
+(:attr:`.led_checks.ExchangedImages.against`).
+
+Why refused, where images far apart that show other LEDs' light are solved in the order they show
+(:func:`.led_checks.detected_order`): those correlate 0.98 with the LED they show and below 0.5 with their own; a
+neighbour's light differs less from an LED's own than an LED model 3 mm off the sensor can (the evidence:
+:data:`~nlipscalib.core.tolerances.MODEL_EXCHANGE_FACTOR`), so the images' order is the user's to fix, not the
+solve's to guess; solved as captured, the twin's sphere presses lost their auto box and 0.3-0.5 deg of the whole gel."""
+EXCHANGE_KEPT = f"; solved as captured ({KEEP_ORDER_FLAG}; report.json leds_exchanged)"
+"""The tail of the warning of :func:`_exchanged_notes` with ``--keep-led-order``."""
 
 
-def _in_detected_order(
-    press: Press, kwargs: dict, order: list[int]
-) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None, list[DarkBand | LaggedBand]]:
+def _exchanged_notes(exchanged: Sequence[ExchangedImages], keep_order: bool) -> list[str]:
+    """The warnings (``keep_order``: ``--keep-led-order``) naming LED images exchanged with a neighbour's
+    (:class:`.led_checks.ExchangedImages`), each logged; [] when none. CaptureError with their line otherwise:
+    :data:`EXCHANGE_REFUSED` says why."""
+    if not exchanged:
+        return []
+    if not keep_order:
+        raise CaptureError("; ".join(found.line for found in exchanged) + EXCHANGE_REFUSED[exchanged[0].against])
+    notes = [found.line + EXCHANGE_KEPT for found in exchanged]
+    for note in notes:
+        log.warning("%s", note)
+    return notes
+
+
+def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Press, dict, tuple]:
     """The press with its LED images in the ``order`` they show (:func:`.led_checks.detected_order`), the undeformed
     capture given (``indirect``) likewise when its own images show the same order (the same wiring), and the
-    warnings, LEDs to leave out, misplaced LEDs, measured gains and dark and lagged bands of the reordered press (its
-    checks made again, logged).
+    warnings, LEDs to leave out, misplaced LEDs, measured gains, dark and lagged bands and exchanged images of the
+    reordered press (its checks made again, logged).
 
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
@@ -325,8 +372,10 @@ def _in_detected_order(
         if its_order == order:
             kwargs["indirect"] = reordered(indirect, order)
     press = reordered(press, order)
-    notes, left_out, misplaced, _, measured, dark = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
-    return press, kwargs, [note, *notes], left_out, misplaced, measured, dark
+    notes, left_out, misplaced, _, measured, dark, exchanged = _capture_notes(
+        press, kwargs.get("leds"), kwargs.get("options")
+    )
+    return press, kwargs, ([note, *notes], left_out, misplaced, measured, dark, exchanged)
 
 
 LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
@@ -335,12 +384,21 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 
 def _capture_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
+) -> tuple[
+    list[str],
+    list[int],
+    list[int],
+    list[int] | None,
+    MeasuredGains | None,
+    list[DarkBand | LaggedBand],
+    list[ExchangedImages],
+]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
     images show another LED's light (0-based), the order the images show (None: theirs, or not clear), the LEDs'
-    light against the model as the check measured it (:class:`.led_checks.MeasuredGains`, or None) and the LED
-    images' dark bands (rows or columns read while the LED was off, :class:`.repeated_frames.DarkBand`).
+    light against the model as the check measured it (:class:`.led_checks.MeasuredGains`, or None), the LED
+    images' dark bands (rows or columns read while the LED was off, :class:`.repeated_frames.DarkBand`) and the
+    images exchanged with a neighbour's (:class:`.led_checks.ExchangedImages`; said by the caller).
     Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
@@ -350,22 +408,30 @@ def _capture_notes(
         if say:
             log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out, misplaced, order, measured, dark = _led_notes(press, leds, options, say)
-    return notes + led_notes, left_out, misplaced, order, measured, dark
+    led_notes, left_out, misplaced, order, measured, dark, exchanged = _led_notes(press, leds, options, say)
+    return notes + led_notes, left_out, misplaced, order, measured, dark, exchanged
 
 
 def _led_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
+) -> tuple[
+    list[str],
+    list[int],
+    list[int],
+    list[int] | None,
+    MeasuredGains | None,
+    list[DarkBand | LaggedBand],
+    list[ExchangedImages],
+]:
     """:func:`.led_checks.led_check_measured` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], [], [], None, None, []  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], [], [], None, None, [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
     live = _live_leds(press, options)
-    notes, left_out, misplaced, order, measured, dark = led_check_measured(press, leds, live)
-    for note in notes if say else ():
+    checks = led_check_measured(press, leds, live)
+    for note in checks[0] if say else ():
         log.warning("%s", note)
-    return notes, left_out, misplaced, order, measured, dark
+    return checks
 
 
 UNDEFORMED_DARK = (

@@ -690,3 +690,22 @@ def test_eval_names_the_results_other_nlipscalib_code_made(data, capsys):
     ), said.err
     out = said.out.splitlines()
     assert any(line.startswith("press_a ") for line in out) and any(line.startswith("press_b ") for line in out)
+
+
+def test_a_press_with_two_neighbouring_led_images_exchanged_is_refused_in_one_line(data, capsys):
+    """led_03.png and led_04.png renamed into each other's place: `nlips solve` solved it silently. Now one line
+    naming the press and both files, exit 2, nothing written; --keep-led-order solves it as captured."""
+    root, cfg = data
+    press = root / "press_a"
+    (press / "led_03.png").rename(press / "x.png")
+    (press / "led_04.png").rename(press / "led_03.png")
+    (press / "x.png").rename(press / "led_04.png")
+    capsys.readouterr()
+    assert main(["--no-progress", "solve", str(press), "--config", str(cfg), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    (line,) = [text for text in err.splitlines() if text.strip()]
+    assert f"{press}: led_03.png and led_04.png look exchanged" in line and "Traceback" not in err
+    assert not (press / "nlips" / "result.npz").exists()
+    assert main(["--no-progress", "solve", str(press), "--config", str(cfg), "--no-figures", "--keep-led-order"]) == 0
+    report = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))
+    assert report["leds_exchanged"] == [[2, 3]]

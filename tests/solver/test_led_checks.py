@@ -76,6 +76,71 @@ def test_swapped_led_images_are_solved_in_the_order_they_show_unless_kept_as_cap
     assert np.abs(kept.depth[gel] - clean.depth[gel]).max() > 0.1
 
 
+def _exchanged(first: int, second: int):
+    """A hook exchanging two LED images (0-based) of a synthetic press, as files renamed by hand."""
+
+    def exchange(lin):
+        lin = lin.copy()
+        lin[[first, second]] = lin[[second, first]]
+        return lin
+
+    return exchange
+
+
+def test_neighbouring_led_images_exchanged_are_refused_naming_them_unless_kept_as_captured(tmp_path, caplog):
+    """led_03.png and led_04.png exchanged (a capture script's off-by-one, files renamed by hand): neighbours light
+    the dome alike, above the 0.5 of the misplaced images' check, and the press was solved without a word (the
+    twin's sphere: its auto box widened to the whole gel, 1.09 deg there against the clean press's 0.80). Now one
+    line names both files and what to do, as ``nlips calibrate-leds`` refuses them; ``reorder_leds=False``
+    (``--keep-led-order``) solves them as captured with that line as a warning and records them."""
+    from nlipscalib.core.errors import CaptureError
+
+    options = SolverOptions(max_iters=2)
+    press = _press(tmp_path, "exchanged", _exchanged(2, 3))
+    with pytest.raises(CaptureError) as refused:
+        solve_press(press, options=options)
+    line = str(refused.value)
+    assert line.startswith(f"{press.folder}: led_03.png and led_04.png look exchanged (") and "\n" not in line
+    assert "led_03.png 0." in line and "with LED 4's" in line and "not solved" in line and "--keep-led-order" in line
+    with caplog.at_level(logging.WARNING):
+        kept = solve_press(press, options=options, reorder_leds=False)
+    assert kept.report["leds_exchanged"] == [[2, 3]]
+    (said,) = [note for note in kept.report["warnings"] if "look exchanged" in note]
+    assert said.endswith("solved as captured (--keep-led-order; report.json leds_exchanged)") and said in caplog.text
+    cycle = _press(tmp_path, "cycle", lambda lin: lin[[0, 1, 3, 4, 2, *range(5, 12)]])  # 3 shows 4, 4 5, 5 3
+    with pytest.raises(CaptureError, match=r"led_03.png, led_04.png and led_05.png \(a cycle\) look exchanged"):
+        solve_press(cycle, options=options)  # led_05.png two LEDs off: misplaced, but no clean order to solve in
+    clean = solve_press(_press(tmp_path, "clean"), options=options)
+    assert "leds_exchanged" not in clean.report
+    assert not any("exchanged" in note for note in clean.report.get("warnings", []))
+
+
+def test_an_undeformed_capture_with_neighbouring_images_exchanged_is_refused_naming_it(tmp_path):
+    """The press's own images in order, the undeformed capture it is solved with (``--reference``) holding
+    led_03.png and led_04.png exchanged: the press's light was compared with the wrong LEDs' there (the twin's
+    sphere: only "--roi auto left out 10227 misfitting pixels along the gel's edge"). The images alone tell (one LED's
+    images correlate far better than two neighbours'); the press fits its LED model, so the line names the undeformed
+    capture as the likelier exchanged. The same exchange in both: the press's own check names it first."""
+    from nlipscalib.core.errors import CaptureError
+
+    def flat(name, hook=None):
+        return load_press(synth.make_press(tmp_path / name, "none", lin_hook=hook))
+
+    options = SolverOptions(max_iters=2)
+    press, exchanged = _press(tmp_path, "press"), flat("ref_exchanged", _exchanged(2, 3))
+    with pytest.raises(CaptureError) as refused:
+        solve_press(press, indirect=exchanged, options=options)
+    line = str(refused.value)
+    assert line.startswith(f"{press.folder}: led_03.png and led_04.png hold the light {exchanged.folder}'s led_04.png")
+    assert f"{exchanged.folder}'s are the likelier exchanged" in line and "--keep-led-order" in line
+    kept = solve_press(press, indirect=exchanged, options=options, reorder_leds=False)
+    assert kept.report["leds_exchanged"] == [[2, 3]]
+    both = _press(tmp_path, "both", _exchanged(2, 3))
+    with pytest.raises(CaptureError, match="led_03.png and led_04.png look exchanged"):
+        solve_press(both, indirect=exchanged, options=options)
+    assert "leds_exchanged" not in solve_press(press, indirect=flat("ref"), options=options).report
+
+
 def test_the_undeformed_capture_given_with_the_same_swap_is_reordered_alike(tmp_path):
     """A session's undeformed capture (``--reference``, a folder's ``reference/``) shows its presses' wiring error:
     reordering the press and not it would compare LED 6's light with LED 3's model of the undeformed dome."""
@@ -470,7 +535,7 @@ def test_the_check_of_too_few_live_leds_says_nothing_in_the_shape_of_every_answe
     """With fewer than 3 live LEDs nothing is judged: empty notes, nothing left out, no dark bands (the solve
     unpacks the six answers whichever path gave them)."""
     press = _press(tmp_path, "few")
-    assert led_check_measured(press, press.leds, [0, 1]) == ([], [], [], None, None, [])
+    assert led_check_measured(press, press.leds, [0, 1]) == ([], [], [], None, None, [], [])
 
 
 def test_rows_dark_in_every_led_image_are_warned_about_and_no_led_is_left_out(tmp_path):
