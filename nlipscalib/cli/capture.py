@@ -25,6 +25,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
 from ..progress import bars_enabled, print_result, say
 from .camera_response import TONE_CURVE_CHOICES
 from .leds import add_baud_argument, check_baud
@@ -601,7 +602,7 @@ def run(args: argparse.Namespace) -> int:
     # the next steps of the sensor's calibration, as `nlips calibrate` and `nlips train` name theirs
     reference = Path(args.out) / "reference"
     say(
-        f"next: nlips calibrate-leds {reference} --out leds.json (the sensor's LEDs), then nlips calibrate "
-        f"{args.out} --leds leds.json (NLiPsNet's training data)"
+        f"next: nlips calibrate-leds {shell_word(reference)} --out leds.json (the sensor's LEDs), then nlips calibrate "
+        f"{shell_word(args.out)} --leds leds.json (NLiPsNet's training data)"
     )
     return 0

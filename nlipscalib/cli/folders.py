@@ -71,12 +71,12 @@ def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
     sibling = folder.parent / REFERENCE_FOLDER
     given = f"its {REFERENCE_FOLDER}/ ({sibling}), " if sibling != folder and is_press_folder(sibling) else ""
     raise ConfigError(
-        f"{folder}: a press of the twin ({_pressed(press)}), not {role}; give {given}an undeformed render "
+        f"{folder}: a press of the twin ({pressed_words(press)}), not {role}; give {given}an undeformed render "
         f"(`nlips render --undeformed` with the press's scene and options), {way_out}"
     )
 
 
-def _pressed(press: dict) -> str:
+def pressed_words(press: dict) -> str:
     """'a sphere of 6 mm pressed 1.50 mm deep' from a twin press's description (meta.json's provenance.press)."""
     indenter = press.get("indenter") if isinstance(press.get("indenter"), dict) else {}
     kind, size, depth = indenter.get("kind"), indenter.get("size"), press.get("depth")

@@ -9,6 +9,8 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
+
 if TYPE_CHECKING:  # named in hints only: torch is imported when a model is trained
     from ..learn.dataset import CalibrationDataset
     from ..learn.train import TrainConfig, TrainResult
@@ -213,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     say(summary)
     if angle is not None:
         say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
-    say(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
+    say(f"next: nlips infer {shell_word(out)} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
 
 

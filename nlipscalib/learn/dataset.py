@@ -59,6 +59,7 @@ from ..core.sensor_record import (
     response_mismatch,
     sensor_of,
 )
+from ..core.shell_words import shell_word
 from ..core.tolerances import FRAME_CHANNEL_DRIFT
 from ..progress import track
 from .change import RULE_VERSION, ChangeDetector
@@ -323,9 +324,9 @@ def torn_index(folder: Path, problem: str) -> str:
     writes the index anew. Where the dataset is the default PRESSES/calibration, the command names PRESSES; its
     maker (``made_by``: an experiment's) is lost with the file, so the calibrate advice is given."""
     if folder.name == DEFAULT_DIR:
-        again = f"run `nlips calibrate {folder.parent}` again"
+        again = f"run `nlips calibrate {shell_word(folder.parent)}` again"
     else:
-        again = f"run `nlips calibrate PRESSES --out {folder}` again on the presses it was made from"
+        again = f"run `nlips calibrate PRESSES --out {shell_word(folder)}` again on the presses it was made from"
     return (
         f"{folder / INDEX_FILE}: {problem}: the dataset's index, torn (a crash or power cut soon after it was "
         f"written?); {again} to write it anew (the samples it indexes are kept where intact)"
