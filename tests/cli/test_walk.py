@@ -258,3 +258,24 @@ def test_an_led_subset_naming_an_led_twice_says_which(tmp_path, capsys, subset, 
     assert main(["solve", str(press), "--leds", subset, "--no-figures"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.endswith(f"is invalid for 12 LEDs: {why}"), line
+
+
+def test_train_on_a_folder_without_index_says_what_it_is_and_what_to_run(twin, tmp_path, capsys):
+    """`nlips train` on a half-built dataset (samples/, no index.json: an interrupted `nlips calibrate`), on a folder
+    of presses not calibrated yet and on a press folder said alike "FOLDER/index.json: missing; FOLDER is not a
+    calibration dataset (run `nlips calibrate`)"."""
+    half = tmp_path / "half"
+    (half / "samples").mkdir(parents=True)
+    cases = {
+        half: f"{half / 'index.json'}: missing, though {half} holds samples/: a build that was interrupted (or is "
+        f"still running); run `nlips calibrate PRESSES --out {half}` again on the presses it was made from to finish "
+        "it (the samples made are kept)",
+        twin: f"{twin}: a folder of presses, not a calibration dataset: `nlips calibrate {twin}` makes one "
+        f"({twin / 'calibration'}), the folder to give",
+        twin / "press_0001": f"{twin / 'press_0001'}: a press folder, not a calibration dataset: `nlips calibrate "
+        f"{twin}` makes one from the folder of presses",
+    }
+    for folder, line in cases.items():
+        assert main(["train", str(folder), "--out", str(tmp_path / "m.pt")]) == 2
+        assert capsys.readouterr().err.strip().splitlines() == [f"nlips train: error: {line}"]
+    assert not (tmp_path / "m.pt").exists()
