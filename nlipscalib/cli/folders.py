@@ -42,6 +42,11 @@ def check_one_capture(folder: str | Path, role: str) -> None:
         raise ConfigError(f"{folder}: a folder of presses, not {role}; its undeformed dome is {reference} (give that)")
     if find_presses(folder):
         raise ConfigError(f"{folder}: a folder of presses, not {role}; give one capture's folder")
+    from ..core.reconstruction import is_reconstruction_dir
+
+    if is_reconstruction_dir(folder):  # PRESS/nlips: was "PRESS/nlips/meta.json: missing; ... not a complete press"
+        made = f": the maps made from {folder.parent}" if is_press_folder(folder.parent) else ""
+        raise ConfigError(f"{folder}: a reconstruction folder (result.npz{made}), not {role}")
 
 
 def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:

@@ -781,8 +781,9 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
     from pathlib import Path
 
     from ..core.errors import CaptureError
-    from ..core.press_folders import find_presses, is_incomplete_press
+    from ..core.press_folders import find_presses, is_incomplete_press, is_press_folder
     from ..core.press_meta import META_FILE, REFERENCE_FOLDER
+    from ..core.reconstruction import is_reconstruction_dir
     from ..learn.dataset import INDEX_FILE, SENSOR_FILE
 
     eight_bit = _EightBitNotice()
@@ -800,6 +801,12 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
                 raise CaptureError(
                     f"{path}: a calibration dataset (`nlips calibrate`), not presses or frames: infer the presses it "
                     f"was made from (e.g. {path.parent}), or give the dataset to `nlips train`"
+                )
+            if is_reconstruction_dir(path):  # its normals.png and depth.png are figures, no frames (s34-walk)
+                press = f" ({path.parent})" if is_press_folder(path.parent) else ""
+                raise CaptureError(
+                    f"{path}: a reconstruction folder (result.npz: a solve's or an inference's maps), not presses or "
+                    f"frames: infer the press it was made from{press}"
                 )
             images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
             if not images:

@@ -279,3 +279,25 @@ def test_train_on_a_folder_without_index_says_what_it_is_and_what_to_run(twin, t
         assert main(["train", str(folder), "--out", str(tmp_path / "m.pt")]) == 2
         assert capsys.readouterr().err.strip().splitlines() == [f"nlips train: error: {line}"]
     assert not (tmp_path / "m.pt").exists()
+
+
+@pytest.mark.parametrize(
+    "command, role",
+    [
+        (["calibrate-leds", "{result}", "--out", "{root}/leds.json"], "a capture of the undeformed dome"),
+        (["solve", "{root}/press_0002", "--reference", "{result}"], "the undeformed dome's capture (--reference)"),
+    ],
+    ids=lambda c: c[0] if isinstance(c, list) else "",
+)
+def test_a_result_folder_given_for_the_undeformed_capture_is_named(twin, capsys, command, role):
+    """`nlips calibrate-leds PRESS/nlips` (and `--reference PRESS/nlips`) said "PRESS/nlips/meta.json: missing;
+    PRESS/nlips is not a complete press folder"."""
+    result = twin / "press_0001" / "nlips"
+    result.mkdir()
+    (result / "result.npz").write_bytes(b"PK")
+    (result / "report.json").write_text("{}", encoding="utf-8")
+    assert main([part.format(root=twin, result=result) for part in command]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(
+        f": error: {result}: a reconstruction folder (result.npz: the maps made from {twin / 'press_0001'}), not {role}"
+    ), line

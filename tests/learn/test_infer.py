@@ -531,6 +531,25 @@ def test_a_calibration_dataset_given_as_input_is_named_as_such(tiny_model, tmp_p
     assert not out.exists()
 
 
+def test_a_reconstruction_folder_given_as_input_names_its_press(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL PRESS/nlips` took the result folder for a folder of frames: its figures inferred, or each
+    refused by size ("normals.png: image is 54x57, the model was calibrated for 160x120 images"), exit 1 (s34-walk)."""
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    result = root / NAMES[0] / "nlips"
+    (result / "normals.png").write_bytes((root / NAMES[0] / "tricolor.png").read_bytes())  # a figure of its size
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(result), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips infer: error: {result}: a reconstruction folder (result.npz: a solve's or an inference's maps), not "
+        f"presses or frames: infer the press it was made from ({root / NAMES[0]})"
+    ], err
+    assert not out.exists()
+    (result / "normals.png").unlink()
+
+
 def test_black_and_saturated_frames_are_called_so_never_a_negative_brightness(tiny_model, tmp_path, caplog, capsys):
     """A black frame (all 0, below the calibration's dark frame) was "-0.037 times as bright"; a saturated one "2.3
     times as bright", with no word of clipping (the audit's frames_black, frames_sat, video_black.avi)."""
