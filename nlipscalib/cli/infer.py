@@ -52,10 +52,12 @@ log = logging.getLogger(__name__)
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
 """Files taken as single tri-colour frames (any case; device.camera.IMAGE_SUFFIXES, what a folder source reads);
 any other file is opened as a video."""
+ERROR_FIGURE = ", error.png with ground truth"
+"""The error map in :data:`FIGURE_FILES`' lists: drawn for a press with ground truth only, never for a frame."""
 FIGURE_FILES = {
     "none": "",
-    "maps": ", normals.png, depth.png, error.png with ground truth",
-    "full": ", normals.png, depth.png, error.png with ground truth, summary.png",
+    "maps": f", normals.png, depth.png{ERROR_FIGURE}",
+    "full": f", normals.png, depth.png{ERROR_FIGURE}, summary.png",
 }
 """What the line saying where the results are lists of each ``--figures`` level's files."""
 FIGURES_DEFAULT = "maps"
@@ -730,7 +732,10 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses, True)}"
     else:
         where = f" in {_where(frames or presses, not frames)}"
-    files = "result.npz, report.json" + (", points.ply" if ply else "") + FIGURE_FILES[figures]
+    figure_files = FIGURE_FILES[figures]
+    if not presses:  # a frame has no ground truth, so no error map: the line listed error.png for frames too
+        figure_files = figure_files.replace(ERROR_FIGURE, "")
+    files = "result.npz, report.json" + (", points.ply" if ply else "") + figure_files
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
     scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
     written = len(saved) - len(kept)

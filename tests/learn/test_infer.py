@@ -1152,6 +1152,19 @@ def _png_size(path):
     return struct.unpack(">II", head[16:24])
 
 
+def test_the_line_of_where_frames_results_are_lists_no_error_map(tmp_path):
+    """`nlips infer MODEL frames/ --out OUT` ended "saved: 3 result folder(s) in OUT/ (result.npz, report.json,
+    normals.png, depth.png, error.png with ground truth; ...)": a frame has no ground truth, and no error.png is
+    written beside it (s34-walk). A press's result still lists it."""
+    from nlipscalib.cli.infer import _where_saved
+
+    frames = [(tmp_path / "out" / f"f{i}", False) for i in range(3)]
+    frame_line = _where_saved(frames, set(), ply=False, figures="maps")
+    assert "(result.npz, report.json, normals.png, depth.png; nlips eval scores them" in frame_line, frame_line
+    press_line = _where_saved([(tmp_path / "p" / "nlipsnet", True)], set(), ply=False, figures="maps")
+    assert "normals.png, depth.png, error.png with ground truth;" in press_line, press_line
+
+
 def test_a_press_and_a_frame_get_the_solves_figures_beside_their_results(tiny_model, tmp_path, capsys, monkeypatch):
     """`nlips infer` of presses and stills wrote arrays only (the s25-figs audit): a lab inferring a still wants to
     look at it. Now the figures `nlips solve` writes: normals.png, depth.png (indentation, mm) and, for a press with
