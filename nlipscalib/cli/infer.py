@@ -956,7 +956,7 @@ def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) 
             )
     for folder, (source, frame) in seen.items():
         _check_not_nested(folder, frame, source)
-        check_replaceable(folder)
+        check_replaceable(folder, method="nlipsnet")
     return [(folder, not frame) for folder, (_, frame) in seen.items()]
 
 

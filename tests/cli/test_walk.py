@@ -301,3 +301,21 @@ def test_a_result_folder_given_for_the_undeformed_capture_is_named(twin, capsys,
     assert line.endswith(
         f": error: {result}: a reconstruction folder (result.npz: the maps made from {twin / 'press_0001'}), not {role}"
     ), line
+
+
+def test_a_result_of_the_other_method_at_out_is_not_replaced(tmp_path, capsys):
+    """`nlips solve PRESS --out PRESS/nlipsnet` replaced the press's NLiPsNet result with an NLiPs one, exit 0 (and
+    `nlips eval PRESS --method nlipsnet` then scored NLiPs as NLiPsNet); `nlips infer` likewise over an NLiPs result."""
+    press = tmp_path / "p1"
+    synth.make_press(press, "sphere", size=(64, 48))
+    other = press / "nlipsnet"
+    other.mkdir()
+    (other / "result.npz").write_bytes(b"PK")
+    (other / "report.json").write_text(json.dumps({"method": "nlipsnet"}), encoding="utf-8")
+    assert main(["solve", str(press), "--out", str(other), "--no-figures"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == (
+        f"nlips solve: error: {other}: holds an NLiPsNet result (`nlips infer`), which this NLiPs result would "
+        "replace; move it away or choose another --out"
+    )
+    assert json.loads((other / "report.json").read_text(encoding="utf-8")) == {"method": "nlipsnet"}
