@@ -319,3 +319,18 @@ def test_a_result_of_the_other_method_at_out_is_not_replaced(tmp_path, capsys):
         "replace; move it away or choose another --out"
     )
     assert json.loads((other / "report.json").read_text(encoding="utf-8")) == {"method": "nlipsnet"}
+
+
+@pytest.mark.parametrize("command", [["infer", "{model}", "{press}"], ["export", "{model}"]], ids=lambda c: c[0])
+def test_an_led_file_given_as_the_model_is_named_a_text_file(tmp_path, capsys, command):
+    """`nlips infer leds.json PRESS` said "not an NLiPsNet model file (not a torch.save archive)" (s34-walk)."""
+    model = tmp_path / "leds.json"
+    model.write_text('{"leds": []}', encoding="utf-8")
+    press = tmp_path / "p1"
+    synth.make_press(press, "sphere", size=(64, 48))
+    assert main([part.format(model=model, press=press) for part in command]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(
+        f"{model}: a text file (JSON: an LED file, a camera calibration, a config?), not the model file: give the .pt "
+        "file from `nlips train`"
+    ), line
