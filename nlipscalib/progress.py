@@ -537,12 +537,14 @@ class RepeatedWarning:
         if not self._held:
             return
         seconds = self.clock() - self._since
+        # a short stream's count at its end: "in the last 0 s" read as no time at all
+        span = f"{seconds:.0f} s" if seconds >= 1 else "second"
         self.logger.warning(
-            "%s: repeated %d more time%s in the last %.0f s (the latest: %s; -v logs each)",
+            "%s: repeated %d more time%s in the last %s (the latest: %s; -v logs each)",
             self.what,
             self._held,
             "" if self._held == 1 else "s",
-            seconds,
+            span,
             self._latest,
         )
         self._held = 0

@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
 from .options import add_allow_edited
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when the fit runs
@@ -328,7 +329,8 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
     say(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
-    say(f"next: nlips solve PRESS --leds {args.out}, or nlips calibrate FOLDER --leds {args.out} (NLiPsNet's labels)")
+    leds = shell_word(args.out)
+    say(f"next: nlips solve PRESS --leds {leds}, or nlips calibrate FOLDER --leds {leds} (NLiPsNet's labels)")
     return 0
 
 

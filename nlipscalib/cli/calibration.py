@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
 from .options import SOLVE_WORKERS_HELP, add_allow_edited, add_led_model
 
 if TYPE_CHECKING:
@@ -145,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if args.led_model == "disks":  # no LED file, or one without disks: one line now, not after the hold
         disk_leds(args.leds)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
+    check_own_folder(out, presses, root / DEFAULT_DIR)
     check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
     damaged = _left_out_damaged(root, presses, out)
@@ -156,6 +158,25 @@ def run(args: argparse.Namespace) -> int:
     # held from before the solves: a build of other samples into this --out is refused now, not after them
     with hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF):
         return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged)
+
+
+def check_own_folder(out: Path, presses: list[Path], default: Path) -> None:
+    """ConfigError naming ``out`` when it is a press folder or the folder of the presses: the calibration dataset
+    (index.json, samples/, sensor.npz, coverage) was written in among the press's images or beside the presses,
+    exit 0, where `nlips solve --out` refuses a press folder. ``default``: the folder to name instead."""
+    from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder
+
+    if is_press_folder(out):
+        what = "a press folder (meta.json)"
+    elif out.is_dir() and any(p.parent.resolve() == out.resolve() for p in presses):
+        what = "the folder of the presses"
+    else:
+        return
+    raise ConfigError(
+        f"--out {out}: {what}; the calibration dataset needs a folder of its own (default {default}): "
+        "give another --out, or leave it out"
+    )
 
 
 def _left_out_damaged(root: Path, presses: list[Path], out: Path) -> dict[str, str]:
@@ -234,7 +255,8 @@ def _solve_and_build(
         if names:
             say(f"{len(names)} press{'es' if len(names) > 1 else ''} {what}: {', '.join(sorted(names))}", warning=True)
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
-    say(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
+    variant = "--hidden 64,64,64 --dropout 0: the real-time variant"
+    say(f"next: nlips train {shell_word(out)} --out MODEL.pt (NLiPsNet; {variant})")
     return 1 if failed or unsampled else 0
 
 

@@ -152,6 +152,7 @@ def exposures_of(text: str | None) -> tuple[float, ...]:
 
 
 def _check(args: argparse.Namespace) -> None:
+    from ..core.atomic import check_writable
     from ..core.errors import ConfigError
 
     if Path(args.out).is_dir():
@@ -173,6 +174,7 @@ def _check(args: argparse.Namespace) -> None:
     if args.average < 1 or args.flush < 0:
         raise ConfigError(f"--average must be >= 1 and --flush >= 0, got {args.average}, {args.flush}")
     args.baud = check_baud(args)
+    check_writable(Path(args.out).parent)  # a read-only disk: one line now, not after the bracket is taken
 
 
 def run(args: argparse.Namespace) -> int:

@@ -25,12 +25,15 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
 from ..progress import bars_enabled, print_result, say
 from .camera_response import TONE_CURVE_CHOICES
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a session runs
+    from pathlib import Path
+
     from ..core.camera import Camera
     from ..core.leds import Led
     from ..core.response_curve import MeasuredResponse
@@ -579,6 +582,28 @@ def stopped_line(args: argparse.Namespace) -> str:
     return f"session {args.out}: {len(done)} of {presses + 1} folders captured ({names or 'none'}); {resume}"
 
 
+def _warn_beyond(out: Path, status: dict) -> list[str]:
+    """Warn about press folders in the session ``out`` that this run did not capture or keep (a run with fewer
+    ``--presses`` than an earlier one); returns their names.
+
+    Why: ``nlips capture --presses 2`` on a session of 4 said "3 folders" and nothing of press_0003 and press_0004,
+    which ``nlips calibrate`` and ``nlips solve`` of the folder still take (``nlips dataset`` says the same of a press
+    its spec no longer names)."""
+    from ..core.press_folders import find_presses
+
+    extra = sorted(p.name for p in find_presses(out) if p.parent == out and p.name not in status)
+    if extra:
+        shown = ", ".join(extra[:3]) + (f" and {len(extra) - 3} more" if len(extra) > 3 else "")
+        them = "it" if len(extra) == 1 else "them"
+        are = "is" if len(extra) == 1 else "are"
+        say(
+            f"{out}: {shown}, captured by an earlier run with more --presses, {are} kept: `nlips calibrate` and "
+            f"`nlips solve` of the folder still use {them} (remove {them}, or capture into a new folder)",
+            warning=True,
+        )
+    return extra
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -598,10 +623,11 @@ def run(args: argparse.Namespace) -> int:
             say(f"{name}: captured in {rec['seconds']:.2f} s, {rec['attempts']} attempt(s)")
     print_result(args.out)  # stdout: the session's folder alone (scripts); what it holds and the next steps on stderr
     say(f"session {args.out}: {len(status)} folders in {time.perf_counter() - t0:.1f} s")
+    _warn_beyond(Path(args.out), status)
     # the next steps of the sensor's calibration, as `nlips calibrate` and `nlips train` name theirs
     reference = Path(args.out) / "reference"
     say(
-        f"next: nlips calibrate-leds {reference} --out leds.json (the sensor's LEDs), then nlips calibrate "
-        f"{args.out} --leds leds.json (NLiPsNet's training data)"
+        f"next: nlips calibrate-leds {shell_word(reference)} --out leds.json (the sensor's LEDs), then nlips calibrate "
+        f"{shell_word(args.out)} --leds leds.json (NLiPsNet's training data)"
     )
     return 0

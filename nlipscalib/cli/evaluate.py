@@ -20,6 +20,8 @@ import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
+
 if TYPE_CHECKING:  # named in hints only: imported when a result is scored
     import numpy as np
 
@@ -102,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
             rows.append((folder.name, scores[args.region]))
     if not rows and not damaged and not outdated:
         raise CaptureError(
-            f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
+            f"{args.path}: no press has a {method} result yet "
+            f"(run {MAKES[method].format(path=shell_word(args.path))} first)"
         )
     if len(pairs) == 1 and (damaged or outdated):  # one press, nothing to tabulate: its error, on stderr, exit 2
         raise CaptureError((damaged or outdated)[0][1])
@@ -114,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     scored = {name for name, _ in rows}
     if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
         shown = ", ".join(older[:3]) + (f" and {len(older) - 3} more" if len(older) > 3 else "")
-        remake = MAKES[method].format(path=args.path)
+        remake = MAKES[method].format(path=shell_word(args.path))
         say(
             f"made by other nlipscalib code, scored as they are: {shown} ({remake} makes them with this version)",
             warning=True,
@@ -141,7 +144,8 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
         return [path.parent], method or named or "nlips"
     if is_reconstruction_dir(path):
         raise CaptureError(
-            f"{path}: a reconstruction folder outside its press; score it with `nlips eval PRESS --result {path}`"
+            f"{path}: a reconstruction folder outside its press; score it with "
+            f"`nlips eval PRESS --result {shell_word(path)}`"
         )
     presses, _ = split_reference(path)  # a folder's undeformed capture is not a press to score
     if not presses:
@@ -166,11 +170,11 @@ def _results_hint(path: Path) -> str:
             return ""
         return (
             f" ({path} holds results of image frames, e.g. {frame.name}, which carry no ground truth): score one "
-            f"against the press its frame shows with `nlips eval PRESS --result {frame}`"
+            f"against the press its frame shows with `nlips eval PRESS --result {shell_word(frame)}`"
         )
     return (
         f" ({path} holds results, e.g. {found.relative_to(path)}): score them against their presses with "
-        f"`nlips eval PRESSES --result {path}`"
+        f"`nlips eval PRESSES --result {shell_word(path)}`"
     )
 
 
@@ -296,7 +300,7 @@ def _stale(press: Path, method: str) -> str | None:
         return None
     if made_from == identity:
         return None
-    again = f"`nlips solve {press} --overwrite`" if method == "nlips" else _infer_command(press, out)
+    again = f"`nlips solve {shell_word(press)} --overwrite`" if method == "nlips" else _infer_command(press, out)
     return f"{out} was made from another capture than {press} holds now (its inputs changed since): remake it: {again}"
 
 
@@ -332,7 +336,8 @@ def _load(folder: Path, method: str, single: bool, out: str | Path | None = None
     out = reconstruction_dir(folder, out, method=method)
     if not has_reconstruction(out):
         if single:
-            raise CaptureError(f"{out}: no {method} result there (run {MAKES[method].format(path=folder)} first)")
+            make = MAKES[method].format(path=shell_word(folder))
+            raise CaptureError(f"{out}: no {method} result there (run {make} first)")
         return None
     try:
         return load_reconstruction(out)
@@ -342,7 +347,8 @@ def _load(folder: Path, method: str, single: bool, out: str | Path | None = None
         settings = _recorded_settings(out)
         if isinstance(settings, str):  # said before any "re-computing": there is nothing to re-compute from
             unknown = "" if settings == str(exc) else f" ({settings})"
-            command = f"nlips solve {folder}" + ("" if out == reconstruction_dir(folder) else f" --out {out}")
+            elsewhere = "" if out == reconstruction_dir(folder) else f" --out {shell_word(out)}"
+            command = f"nlips solve {shell_word(folder)}{elsewhere}"
             return (
                 f"{exc}; the settings it was solved with are unknown{unknown}: re-solve it with "
                 f"`{command} --overwrite` and the options it was first solved with"
@@ -363,7 +369,8 @@ def _infer_command(folder: Path, out: Path) -> str:
         model = None
     model = model if isinstance(model, str) and model else "MODEL.pt"
     elsewhere = out != reconstruction_dir(folder, method="nlipsnet") and out.parent.name == folder.name
-    return f"`nlips infer {model} {folder}" + (f" --out {out.parent.parent}`" if elsewhere else "`")
+    command = f"`nlips infer {shell_word(model)} {shell_word(folder)}"
+    return command + (f" --out {shell_word(out.parent.parent)}`" if elsewhere else "`")
 
 
 def _recorded_settings(out: Path):

@@ -34,6 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from contextlib import nullcontext
     from pathlib import Path
 
+    from ..core.atomic import check_writable
     from ..core.errors import ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
@@ -43,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
+    check_writable(out.parent)  # a read-only disk: one line now, not after loading the model and exporting it
     beside = out.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     # beside the model, its ONNX file is one of a training's files: read and written while no training publishes
     # its own (learn.publish), or an export of the model it replaced would land beside the new one

@@ -42,6 +42,11 @@ def check_one_capture(folder: str | Path, role: str) -> None:
         raise ConfigError(f"{folder}: a folder of presses, not {role}; its undeformed dome is {reference} (give that)")
     if find_presses(folder):
         raise ConfigError(f"{folder}: a folder of presses, not {role}; give one capture's folder")
+    from ..core.reconstruction import is_reconstruction_dir
+
+    if is_reconstruction_dir(folder):  # PRESS/nlips: was "PRESS/nlips/meta.json: missing; ... not a complete press"
+        made = f": the maps made from {folder.parent}" if is_press_folder(folder.parent) else ""
+        raise ConfigError(f"{folder}: a reconstruction folder (result.npz{made}), not {role}")
 
 
 def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
@@ -71,12 +76,12 @@ def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
     sibling = folder.parent / REFERENCE_FOLDER
     given = f"its {REFERENCE_FOLDER}/ ({sibling}), " if sibling != folder and is_press_folder(sibling) else ""
     raise ConfigError(
-        f"{folder}: a press of the twin ({_pressed(press)}), not {role}; give {given}an undeformed render "
+        f"{folder}: a press of the twin ({pressed_words(press)}), not {role}; give {given}an undeformed render "
         f"(`nlips render --undeformed` with the press's scene and options), {way_out}"
     )
 
 
-def _pressed(press: dict) -> str:
+def pressed_words(press: dict) -> str:
     """'a sphere of 6 mm pressed 1.50 mm deep' from a twin press's description (meta.json's provenance.press)."""
     indenter = press.get("indenter") if isinstance(press.get("indenter"), dict) else {}
     kind, size, depth = indenter.get("kind"), indenter.get("size"), press.get("depth")

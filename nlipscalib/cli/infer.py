@@ -52,10 +52,12 @@ log = logging.getLogger(__name__)
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
 """Files taken as single tri-colour frames (any case; device.camera.IMAGE_SUFFIXES, what a folder source reads);
 any other file is opened as a video."""
+ERROR_FIGURE = ", error.png with ground truth"
+"""The error map in :data:`FIGURE_FILES`' lists: drawn for a press with ground truth only, never for a frame."""
 FIGURE_FILES = {
     "none": "",
-    "maps": ", normals.png, depth.png, error.png with ground truth",
-    "full": ", normals.png, depth.png, error.png with ground truth, summary.png",
+    "maps": f", normals.png, depth.png{ERROR_FIGURE}",
+    "full": f", normals.png, depth.png{ERROR_FIGURE}, summary.png",
 }
 """What the line saying where the results are lists of each ``--figures`` level's files."""
 FIGURES_DEFAULT = "maps"
@@ -741,7 +743,10 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses, True)}"
     else:
         where = f" in {_where(frames or presses, not frames)}"
-    files = "result.npz, report.json" + (", points.ply" if ply else "") + FIGURE_FILES[figures]
+    figure_files = FIGURE_FILES[figures]
+    if not presses:  # a frame has no ground truth, so no error map: the line listed error.png for frames too
+        figure_files = figure_files.replace(ERROR_FIGURE, "")
+    files = "result.npz, report.json" + (", points.ply" if ply else "") + figure_files
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
     scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
     written = len(saved) - len(kept)
@@ -792,8 +797,9 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
     from pathlib import Path
 
     from ..core.errors import CaptureError
-    from ..core.press_folders import find_presses, is_incomplete_press
+    from ..core.press_folders import find_presses, is_incomplete_press, is_press_folder
     from ..core.press_meta import META_FILE, REFERENCE_FOLDER
+    from ..core.reconstruction import is_reconstruction_dir
     from ..learn.dataset import INDEX_FILE, SENSOR_FILE
 
     eight_bit = _EightBitNotice()
@@ -811,6 +817,12 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
                 raise CaptureError(
                     f"{path}: a calibration dataset (`nlips calibrate`), not presses or frames: infer the presses it "
                     f"was made from (e.g. {path.parent}), or give the dataset to `nlips train`"
+                )
+            if is_reconstruction_dir(path):  # its normals.png and depth.png are figures, no frames (s34-walk)
+                press = f" ({path.parent})" if is_press_folder(path.parent) else ""
+                raise CaptureError(
+                    f"{path}: a reconstruction folder (result.npz: a solve's or an inference's maps), not presses or "
+                    f"frames: infer the press it was made from{press}"
                 )
             images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
             if not images:
@@ -955,7 +967,7 @@ def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) 
             )
     for folder, (source, frame) in seen.items():
         _check_not_nested(folder, frame, source)
-        check_replaceable(folder)
+        check_replaceable(folder, method="nlipsnet")
     return [(folder, not frame) for folder, (_, frame) in seen.items()]
 
 

@@ -281,6 +281,23 @@ def _check_replaceable(out: Path) -> None:
     raise ConfigError(f"{out}: a file where a folder is needed (choose another --out, or move the file)")
 
 
+def _press_or_dome(provenance: dict | None, press: PressConfig | None) -> str:
+    """ "a coin of 6 mm pressed 1.00 mm deep -> the undeformed dome" where the folder's render (its meta.json's
+    ``provenance``) and this one are a press and the undeformed dome; "" otherwise. Why: the settings' difference
+    printed the whole press description against None, a Python dict of nine fields."""
+    from ..core.config import to_mapping
+    from .folders import pressed_words
+
+    if not isinstance(provenance, dict) or "press" not in provenance:
+        return ""
+    was = provenance["press"]
+    if (was is None) == (press is None) or not (was is None or isinstance(was, dict)):
+        return ""
+    dome = "the undeformed dome"
+    now = dome if press is None else pressed_words(to_mapping(press))
+    return f"{dome if was is None else pressed_words(was)} -> {now}"
+
+
 def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: int | None) -> bool:
     """True when ``out`` holds this very render; an existing folder from another spec is an error."""
     import json
@@ -303,13 +320,14 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
             "use --overwrite to render it again, or another --out"
         )
     try:
-        recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"])
+        provenance = json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"]
+        recorded = recorded_spec_hash(provenance)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        recorded = None
+        provenance, recorded = None, None
     if recorded != render_spec_hash(scene, press, seed):
         mesh = press.indenter.mesh if press is not None and press.indenter.kind == "mesh" else None
         edited = f" (or from another version of {mesh}: the mesh file's content counts)" if mesh else ""
-        why = spec_change(scene, press, seed, out)
+        why = _press_or_dome(provenance, press) or spec_change(scene, press, seed, out)
         raise ConfigError(
             f"{out}: already holds a press rendered from a different scene, press or seed{edited}"
             f"{f' ({why})' if why else ''}; "

@@ -166,6 +166,8 @@ def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from ..core.config import check_count, from_mapping, read_config_file
     from ..core.errors import ConfigError
     from ..core.press_checksums import check_unchanged
@@ -188,11 +190,16 @@ def run(args: argparse.Namespace) -> int:
         options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
     check_count("--workers", args.workers, minimum=0)
     presses, reference = split_reference(args.press, args.reference)
-    if not presses:
-        raise no_presses_error(args.press)
-    if args.reference is not None:
+    if args.reference is not None:  # before "no press": the press given as its own --reference leaves none
         check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
         check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or solve without --reference")
+    if not presses and reference is not None and Path(args.press).resolve() == Path(reference).resolve():
+        raise ConfigError(
+            f"{args.press}: given as the press and as its --reference; --reference names the undeformed dome's "
+            "capture (another folder), or solve without --reference"
+        )
+    if not presses:
+        raise no_presses_error(args.press)
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
     if not args.allow_edited:  # a file copied over one: one line now, not a solve of the wrong image

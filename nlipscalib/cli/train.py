@@ -9,6 +9,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.shell_words import shell_word
 from .options import add_allow_edited
 
 if TYPE_CHECKING:  # named in hints only: torch is imported when a model is trained
@@ -218,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     say(summary)
     if angle is not None:
         say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
-    say(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
+    say(f"next: nlips infer {shell_word(out)} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
 
 

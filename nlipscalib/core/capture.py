@@ -537,9 +537,18 @@ def _check_image(img: np.ndarray, shape: tuple[int, int], name: str) -> None:
 def _check_subset(subset: Sequence[int], n: int, folder: Path) -> list[int]:
     subset = [int(i) for i in subset]
     bad = [i for i in subset if not 0 <= i < n]
-    if bad or len(set(subset)) != len(subset) or not subset:
+    twice = sorted({i + 1 for i in subset if subset.count(i) > 1})
+    if bad or twice or not subset:
+        # which LED is wrong, counting from 1 as the user typed them ("indices must be unique" named none)
+        why = (
+            "no LED"
+            if not subset
+            else f"LED {', '.join(str(i + 1) for i in bad)} out of range 1..{n}"
+            if bad
+            else f"LED {', '.join(map(str, twice))} named twice"
+        )
         raise CaptureError(
             f"{folder}: LED subset {subset} (0-based; LEDs {[i + 1 for i in subset]} counting from 1) "
-            f"is invalid for {n} LEDs: indices must be unique, in range and at least one"
+            f"is invalid for {n} LEDs: {why}"
         )
     return subset

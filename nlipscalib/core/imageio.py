@@ -107,6 +107,18 @@ def read_png_bytes(path: str | Path) -> np.ndarray:
     return data
 
 
+def capture_shape_problem(shape: tuple[int, ...], camera_shape: tuple[int, int], meta: str = "meta.json") -> str:
+    """Why a capture's decoded image of ``shape`` does not fit its camera's (H, W) ``camera_shape``, in the file's
+    terms ("a grey (single-channel) PNG, ...", "image is 80x60 pixels, ..."); "" when it fits. Why: a grey image
+    was "image is (120, 160), but the camera in meta.json is (120, 160, 3)", two NumPy shapes to compare."""
+    (height, width) = camera_shape
+    if len(shape) == 2:
+        return f"a grey (single-channel) PNG, where a capture's images are RGB ({width}x{height}, 3 channels)"
+    if tuple(shape[:2]) != (height, width):
+        return f"image is {shape[1]}x{shape[0]} pixels, but the camera in {meta} is {width}x{height}"
+    return "" if shape[2:] == (3,) else f"expected 3 colour channels, found {shape[2]}"
+
+
 def decode_png16(data: np.ndarray, path: str | Path, out: np.ndarray | None = None) -> np.ndarray:
     """Decode a 16-bit PNG's bytes (:func:`read_png_bytes`) read from ``path`` (named in errors).
 
@@ -126,8 +138,8 @@ def decode_png16(data: np.ndarray, path: str | Path, out: np.ndarray | None = No
     if img is None:
         _raise_if_damaged_inside(data, path)
         raise CaptureError(f"{path}: not a readable PNG image")
-    if img.dtype != np.uint16:
-        raise CaptureError(f"{path}: expected a 16-bit PNG, found {img.dtype}")
+    if img.dtype != np.uint16:  # "found uint8" named NumPy's type, not the file's bit depth
+        raise CaptureError(f"{path}: an {8 * img.dtype.itemsize}-bit PNG, where a 16-bit PNG is expected")
     if img.ndim == 2:
         return img
     if img.shape[2] != 3:

@@ -60,6 +60,26 @@ class LedFile(NamedTuple):
     :func:`nlipscalib.core.led_change.light_level`); None in files written before it was recorded (2026-12-06)."""
 
 
+LED_FILE_HINT = "give the .json from `nlips calibrate-leds`"
+"""What an error about a file given as an LED file says to give instead."""
+
+OTHER_FORMATS = {
+    "nlipscalib.press": "a press's meta.json",
+    "nlipscalib.reconstruction": "a reconstruction's report.json",
+    "nlipscalib.calibration": "a calibration dataset's index.json",
+    "nlipscalib.camera_response": "a camera response file",
+    "nlipscalib.checksums": "a press's checksums.json",
+}
+"""The workbench's JSON files that carry a ``format`` (an LED file has none), by what a user calls them: given as
+an LED file, a press's meta.json (which lists its design's LEDs too) read on to "'sensor' is not a sensor
+description (missing key 'camera')", naming nothing of the mix-up."""
+
+
+def _other_format(name: str) -> str:
+    """What a JSON file of format ``name`` is, in a user's words."""
+    return OTHER_FORMATS.get(name, f"a file of format {name!r}")
+
+
 def read_led_file(path: str | Path) -> LedFile:
     """Read an LED file from ``nlips calibrate-leds`` (CaptureError naming it when missing or malformed)."""
     path = Path(path)
@@ -67,6 +87,8 @@ def read_led_file(path: str | Path) -> LedFile:
         data = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(data, dict):
             raise ValueError(f"expected a JSON object with 'leds', got {type(data).__name__}")
+        if isinstance(data.get("format"), str):  # an LED file has none: a press's meta.json also lists 'leds'
+            raise CaptureError(f"{path}: {_other_format(data['format'])}, not an LED file: {LED_FILE_HINT}")
         if not isinstance(data.get("leds"), list):
             raise ValueError(f"'leds' must be a list of LEDs, got {data.get('leds')!r}")
         leds = tuple(Led.from_dict(d) for d in data["leds"])
@@ -75,13 +97,14 @@ def read_led_file(path: str | Path) -> LedFile:
         radius = float(disks.get("radius_mm", 0.0)) if emitters else 0.0
         if emitters and (len(emitters) != len(leds) or not radius > 0):
             raise ValueError(f"'emitters' must hold {len(leds)} LEDs and a radius_mm > 0")
+    except CaptureError:  # said in full above: a NlipsError is a ValueError, not to be wrapped below
+        raise
     except FileNotFoundError:
         raise CaptureError(f"{path}: no such LED file") from None
     except IsADirectoryError:
         raise CaptureError(f"{path}: a folder, not an LED file (the .json from `nlips calibrate-leds`)") from None
     except UnicodeDecodeError:  # a binary file (a model .pt, an image): the decoder's byte offsets tell a user nothing
-        hint = "give the .json from `nlips calibrate-leds`"
-        raise CaptureError(f"{path}: not an LED file (binary, not JSON): {hint}") from None
+        raise CaptureError(f"{path}: not an LED file (binary, not JSON): {LED_FILE_HINT}") from None
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
     sensor = data.get("sensor")

@@ -17,6 +17,7 @@ back into full-frame maps, so every reader sees what a version 1 file (full-fram
 from __future__ import annotations
 
 import dataclasses
+import json
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -38,6 +39,10 @@ READ_VERSIONS = (1, FORMAT_VERSION)
 RESULT_DIR = "nlips"
 METHODS = ("nlips", "nlipsnet")
 """Reconstruction methods; each writes PRESS/<method>/ in this format."""
+METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet"}
+"""Each method as a user reads it."""
+MADE_BY = {"nlips": "nlips solve", "nlipsnet": "nlips infer"}
+"""The command that makes each method's results."""
 RESULT_FILE = "result.npz"
 REPORT_FILE = "report.json"
 
@@ -147,13 +152,15 @@ def is_reconstruction_dir(folder: str | Path) -> bool:
     return (folder / RESULT_FILE).is_file() and (folder / REPORT_FILE).is_file()
 
 
-def replace_problem(folder: str | Path) -> str | None:
+def replace_problem(folder: str | Path, method: str | None = None) -> str | None:
     """Why writing a reconstruction into ``folder`` would destroy something else, or None when it may.
 
     A reconstruction is published by replacing the whole folder (core.atomic), so ``folder`` must be
     absent, an empty folder, or a reconstruction folder -- even a damaged one: result.npz or report.json
     among files alone. A file, a press folder, a folder of presses or any other folder is not one
-    (``nlips solve PRESS --out DATASET`` would otherwise replace the dataset with one result).
+    (``nlips solve PRESS --out DATASET`` would otherwise replace the dataset with one result). With ``method``
+    (:data:`METHODS`: what is to be written), a result its report.json records as another method's is not one
+    either (``nlips solve PRESS --out PRESS/nlipsnet`` replaced the press's NLiPsNet result, exit 0).
     """
     folder = Path(folder)
     if not folder.exists() and not folder.is_symlink():
@@ -169,13 +176,28 @@ def replace_problem(folder: str | Path) -> str | None:
         return f"{folder}: is a press folder, not a reconstruction folder"
     if not names & {RESULT_FILE, REPORT_FILE} or any(e.is_dir() for e in entries):
         return f"{folder}: exists and holds other things than a reconstruction ({listed})"
+    other = _recorded_method(folder / REPORT_FILE) if method is not None else None
+    if other is not None and other != method:
+        made = f"an {METHOD_NAMES[other]} result (`{MADE_BY[other]}`)"
+        return f"{folder}: holds {made}, which this {METHOD_NAMES[method]} result would replace"
     return None
 
 
-def check_replaceable(folder: str | Path, remedy: str = "move it away or choose another --out") -> None:
-    """Raise CaptureError (:func:`replace_problem`, with ``remedy``) unless a reconstruction may be written
-    into ``folder``."""
-    problem = replace_problem(folder)
+def _recorded_method(report: Path) -> str | None:
+    """The method (:data:`METHODS`) a report.json records; None when it cannot be read or names none."""
+    try:
+        method = json.loads(report.read_text(encoding="utf-8")).get("method")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return method if method in METHODS else None
+
+
+def check_replaceable(
+    folder: str | Path, remedy: str = "move it away or choose another --out", method: str | None = None
+) -> None:
+    """Raise CaptureError (:func:`replace_problem`, with ``remedy``) unless a reconstruction (of ``method``, when
+    given) may be written into ``folder``."""
+    problem = replace_problem(folder, method)
     if problem is not None:
         raise CaptureError(f"{problem}; {remedy}")
 

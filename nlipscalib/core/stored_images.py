@@ -20,7 +20,7 @@ import numpy as np
 from .camera import Camera
 from .cpus import usable_cores
 from .errors import CaptureError
-from .imageio import decode_png16, read_png_bytes
+from .imageio import capture_shape_problem, decode_png16, read_png_bytes
 from .prefetch import stop as stop_prefetching
 from .prefetch import take as take_prefetched
 from .press_meta import META_FILE, existing_file
@@ -210,8 +210,8 @@ def _decode_image(
     elif out is not None and out.shape == img.shape:
         out[...] = img
         img = out
-    if img.shape != camera.shape + (3,):
-        raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
+    if problem := capture_shape_problem(img.shape, camera.shape, META_FILE):
+        raise CaptureError(f"{path}: {problem}")
     return undo_tone_curve(img, tone_curve)
 
 

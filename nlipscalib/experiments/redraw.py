@@ -17,6 +17,7 @@ from pathlib import Path
 from ..core.atomic import whole_dir, write_text
 from ..core.config import from_mapping
 from ..core.errors import ConfigError
+from ..core.shell_words import shell_word
 from . import markdown
 from .framework import RESULTS, Experiment, WorkFigure
 from .provenance import software
@@ -75,7 +76,7 @@ def read_results(path: Path, name: str) -> dict:
     if doc["experiment"] != name:
         raise ConfigError(
             f"{path}: the results of experiment {doc['experiment']!r}, not {name!r}; "
-            f"redraw it with: nlips experiment {doc['experiment']} --redraw {path.parent}"
+            f"redraw it with: nlips experiment {doc['experiment']} --redraw {shell_word(path.parent)}"
         )
     return doc
 

@@ -59,6 +59,7 @@ from ..core.sensor_record import (
     response_mismatch,
     sensor_of,
 )
+from ..core.shell_words import shell_word
 from ..core.tolerances import FRAME_CHANNEL_DRIFT
 from ..progress import track
 from .change import RULE_VERSION, ChangeDetector
@@ -326,14 +327,46 @@ def torn_index(folder: Path, problem: str) -> str:
     samples (samples/PRESS.npz) are intact then, and `nlips calibrate` run again on the presses keeps them and
     writes the index anew. Where the dataset is the default PRESSES/calibration, the command names PRESSES; its
     maker (``made_by``: an experiment's) is lost with the file, so the calibrate advice is given."""
-    if folder.name == DEFAULT_DIR:
-        again = f"run `nlips calibrate {folder.parent}` again"
-    else:
-        again = f"run `nlips calibrate PRESSES --out {folder}` again on the presses it was made from"
     return (
         f"{folder / INDEX_FILE}: {problem}: the dataset's index, torn (a crash or power cut soon after it was "
-        f"written?); {again} to write it anew (the samples it indexes are kept where intact)"
+        f"written?); {_calibrate_again(folder)} to write it anew (the samples it indexes are kept where intact)"
     )
+
+
+def _calibrate_again(folder: Path) -> str:
+    """The `nlips calibrate` that makes the dataset ``folder`` again: its presses named where it is the default
+    PRESSES/calibration."""
+    if folder.name == DEFAULT_DIR:
+        return f"run `nlips calibrate {shell_word(folder.parent)}` again"
+    return f"run `nlips calibrate PRESSES --out {shell_word(folder)}` again on the presses it was made from"
+
+
+def no_index(folder: Path) -> str:
+    """What a folder without index.json is, for the line `nlips train` says of it: a build interrupted before its
+    index (samples/ there), a folder of presses not calibrated yet, a press folder, or anything else.
+
+    Why: each was "FOLDER/index.json: missing; FOLDER is not a calibration dataset (run `nlips calibrate`)": a
+    half-built dataset was not told that a rerun finishes it, keeping its samples, nor a folder of presses which
+    command to run on it."""
+    from ..core.press_folders import find_presses, is_press_folder
+
+    path = folder / INDEX_FILE
+    if (folder / SHARD_DIR).is_dir():
+        return (
+            f"{path}: missing, though {folder} holds {SHARD_DIR}/: a build that was interrupted (or is still "
+            f"running); {_calibrate_again(folder)} to finish it (the samples made are kept)"
+        )
+    if is_press_folder(folder):
+        return (
+            f"{folder}: a press folder, not a calibration dataset: `nlips calibrate {shell_word(folder.parent)}` "
+            "makes one from the folder of presses"
+        )
+    if folder.is_dir() and find_presses(folder):
+        return (
+            f"{folder}: a folder of presses, not a calibration dataset: `nlips calibrate {shell_word(folder)}` makes "
+            f"one ({folder / DEFAULT_DIR}), the folder to give"
+        )
+    return f"{path}: missing; {folder} is not a calibration dataset (run `nlips calibrate`)"
 
 
 def remake_advice(folder: Path, made_by: object) -> str:
@@ -870,6 +903,8 @@ class CalibrationDataset:
             )
         if path.is_file() and (torn := file_problem(path)) is not None:
             raise CaptureError(torn_index(self.folder, torn))
+        if self.folder.is_dir() and not path.exists():
+            raise CaptureError(no_index(self.folder))
         index = read_format_json(
             path,
             FORMAT_NAME,

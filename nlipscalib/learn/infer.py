@@ -571,7 +571,7 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     frame : (H, W, 3) float32, linear (dark-subtracted, 1 = full scale)
     sensor : dict (:func:`nlipscalib.core.sensor_record.sensor_of` layout)
     """
-    from ..core.imageio import read_png16
+    from ..core.imageio import capture_shape_problem, read_png16
     from ..core.press_meta import META_FILE, parse_optics, read_meta
     from ..core.sensor_record import describe_sensor
     from ..core.sensor_response import undo_tone_curve
@@ -583,7 +583,7 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     images = []
     for name in (meta["images"]["tricolor"], meta["images"]["dark"]):
         img = read_png16(folder / name)
-        if img.shape != camera.shape + (3,):
-            raise CaptureError(f"{folder / name}: image is {img.shape}, the camera in meta.json is {camera.shape}")
+        if problem := capture_shape_problem(img.shape, camera.shape):
+            raise CaptureError(f"{folder / name}: {problem}")
         images.append(undo_tone_curve(img, response.tone_curve()))  # a declared sRGB camera, as load_press does
     return linearise(images[0], images[1], response.black_level, response.white_level), sensor

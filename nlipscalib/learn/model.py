@@ -370,6 +370,12 @@ def _check_model_path(path: Path) -> None:
             f"{path}: a NumPy archive (a calibration dataset's or a result's arrays), not the model file: give the "
             ".pt file from `nlips train`"
         )
+    if path.suffix.lower() in (".json", ".toml", ".yaml", ".yml"):  # an LED file given for the model (s34-walk): it
+        # was "not an NLiPsNet model file (not a torch.save archive)", naming neither what it is nor what to give
+        raise CaptureError(
+            f"{path}: a text file ({path.suffix.lower()[1:].upper()}: an LED file, a camera calibration, a config?), "
+            "not the model file: give the .pt file from `nlips train`"
+        )
     if path.suffix.lower() == ".onnx":  # the export beside the model: it lacks the sensor and reference frame
         beside = path.with_suffix(".pt")
         hint = f" ({beside})" if beside.is_file() else ""

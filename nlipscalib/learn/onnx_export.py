@@ -26,6 +26,7 @@ import numpy as np
 from ..core.cpus import usable_cores
 from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
+from ..core.shell_words import shell_word
 from ..core.tolerances import ONNX_PARITY_DEG, ONNX_WEIGHT_TOL
 
 if TYPE_CHECKING:  # named in hints only: the model module (and torch) are imported where an export needs them
@@ -48,8 +49,9 @@ def export_hint(model_path: str | Path, again: bool = False) -> str:
     """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale
     (``again``: damaged, so it is written again)."""
     if again:
-        return f"`nlips export {model_path}` writes it again, or use --backend torch"
-    return f"`nlips export {model_path}` writes it, as `nlips train` does unless --no-onnx; or use --backend torch"
+        return f"`nlips export {shell_word(model_path)}` writes it again, or use --backend torch"
+    export = f"`nlips export {shell_word(model_path)}`"
+    return f"{export} writes it, as `nlips train` does unless --no-onnx; or use --backend torch"
 
 
 def bytes_digest(data: bytes) -> str:

@@ -239,7 +239,8 @@ def solve_one(
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = result_dir(folder, out)
-    check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
+    # a dataset, a press, a user's folder or an NLiPsNet result at --out is never replaced by a result
+    check_replaceable(out, method="nlips")
     provenance = make_provenance(folder, settings)
     with _hold(folder, out, run_record(settings)):  # a live run of other settings keeps its press: refused here
         return _reuse_or_solve(

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..core import masks, tolerances
 from ..core.errors import CaptureError, NoContactError
+from ..core.shell_words import shell_word
 from .contact import ContactMap
 from .contact_flank import grow_over_flank
 from .contact_grid import edge_noise_gain
@@ -120,7 +121,8 @@ def _refuse_without_contact(
     if why := no_contact(contact, hit, edge_model_error):
         reason, within_noise = why
         # the command named: `nlips calibrate` and `nlips demo` print this too, and take no --roi
-        solve_anyway = f"`nlips solve {folder or 'PRESS'} --roi X0 Y0 W H`, or without --roi, solves it anyway"
+        press = shell_word(folder) if folder else "PRESS"
+        solve_anyway = f"`nlips solve {press} --roi X0 Y0 W H`, or without --roi, solves it anyway"
         if within_noise:
             # what to do, as well as what was found: a press too light to show, or the undeformed dome's capture
             raise NoContactError(

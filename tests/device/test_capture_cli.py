@@ -38,6 +38,18 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     # the twin that rendered it, as a rendered press records it: a resume after an upgrade tells (test_session.py)
     assert {k: p.meta["provenance"][k] for k in ("code", "libraries")} == render_identity()
     assert json.loads((tmp_path / "s" / "session.json").read_text(encoding="utf-8"))["n_leds"] == 12
+    # run again with fewer --presses: press_0002 stays, and `nlips calibrate` of the folder takes it (s34-walk: this
+    # run said "2 folders" and nothing of it)
+    assert main(args + [str(tmp_path / "s"), "--presses", "1"]) == 0
+    out = capsys.readouterr().err
+    assert (
+        "press_0002: " not in out
+        and (
+            f"{tmp_path / 's'}: press_0002, captured by an earlier run with more --presses, is kept: `nlips calibrate` "
+            "and `nlips solve` of the folder still use it (remove it, or capture into a new folder)"
+        )
+        in out.splitlines()
+    )
 
 
 def test_an_emulated_session_resumed_with_another_tone_curve_is_one_line_exit_2(tmp_path, capsys):

@@ -531,6 +531,25 @@ def test_a_calibration_dataset_given_as_input_is_named_as_such(tiny_model, tmp_p
     assert not out.exists()
 
 
+def test_a_reconstruction_folder_given_as_input_names_its_press(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL PRESS/nlips` took the result folder for a folder of frames: its figures inferred, or each
+    refused by size ("normals.png: image is 54x57, the model was calibrated for 160x120 images"), exit 1 (s34-walk)."""
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    result = root / NAMES[0] / "nlips"
+    (result / "normals.png").write_bytes((root / NAMES[0] / "tricolor.png").read_bytes())  # a figure of its size
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(result), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips infer: error: {result}: a reconstruction folder (result.npz: a solve's or an inference's maps), not "
+        f"presses or frames: infer the press it was made from ({root / NAMES[0]})"
+    ], err
+    assert not out.exists()
+    (result / "normals.png").unlink()
+
+
 def test_black_and_saturated_frames_are_called_so_never_a_negative_brightness(tiny_model, tmp_path, caplog, capsys):
     """A black frame (all 0, below the calibration's dark frame) was "-0.037 times as bright"; a saturated one "2.3
     times as bright", with no word of clipping (the audit's frames_black, frames_sat, video_black.avi)."""
@@ -1131,6 +1150,19 @@ def _png_size(path):
     head = path.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n", path
     return struct.unpack(">II", head[16:24])
+
+
+def test_the_line_of_where_frames_results_are_lists_no_error_map(tmp_path):
+    """`nlips infer MODEL frames/ --out OUT` ended "saved: 3 result folder(s) in OUT/ (result.npz, report.json,
+    normals.png, depth.png, error.png with ground truth; ...)": a frame has no ground truth, and no error.png is
+    written beside it (s34-walk). A press's result still lists it."""
+    from nlipscalib.cli.infer import _where_saved
+
+    frames = [(tmp_path / "out" / f"f{i}", False) for i in range(3)]
+    frame_line = _where_saved(frames, set(), ply=False, figures="maps")
+    assert "(result.npz, report.json, normals.png, depth.png; nlips eval scores them" in frame_line, frame_line
+    press_line = _where_saved([(tmp_path / "p" / "nlipsnet", True)], set(), ply=False, figures="maps")
+    assert "normals.png, depth.png, error.png with ground truth;" in press_line, press_line
 
 
 def test_a_press_and_a_frame_get_the_solves_figures_beside_their_results(tiny_model, tmp_path, capsys, monkeypatch):

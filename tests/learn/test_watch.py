@@ -69,6 +69,20 @@ def test_a_fault_that_comes_back_hours_later_is_said_again_once_a_minute_at_most
     assert lines[4].startswith("3601 of 3607 frames differed")
 
 
+def test_a_short_streams_count_at_its_end_says_the_last_second_not_0_s(caplog):
+    """`nlips live --emulate ... --max-frames 5` ended "repeated 4 more times in the last 0 s" (s34-walk)."""
+    watch = MismatchWatch(_Predictor(), "camera 0")
+    now = [0.0]
+    watch.warning.clock = lambda: now[0]
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.learn.watch"):
+        for frame in range(5):
+            now[0] = frame * 0.02
+            watch(np.full((2, 2, 3), 2 * FRAME_MISMATCH_FRACTION))
+        watch.report()
+    lines = [r.getMessage() for r in caplog.records]
+    assert "repeated 4 more times in the last second (the latest: camera 0 frame 4;" in lines[1], lines
+
+
 def test_a_stream_like_the_reference_says_nothing(caplog):
     watch = MismatchWatch(_Predictor(), "camera 0")
     with caplog.at_level(logging.WARNING):
