@@ -124,17 +124,30 @@ class ExchangedImages(NamedTuple):
     """What told it: "model" (the LED model's light) or "reference" (the undeformed capture's images)."""
 
 
-def led_check_measured(
-    press: Press, leds: Sequence[Led], live: Sequence[int]
-) -> tuple[
-    list[str],
-    list[int],
-    list[int],
-    list[int] | None,
-    MeasuredGains | None,
-    list[DarkBand | LaggedBand],
-    list[ExchangedImages],
-]:
+class LedFindings(NamedTuple):
+    """What :func:`led_check_measured` found of a capture's LED images (a tuple: unpacks in this order)."""
+
+    notes: list[str]
+    """The warnings, each naming the capture and the files."""
+    left_out: list[int]
+    """The LEDs (0-based) to leave out of the solve."""
+    misplaced: list[int]
+    """The LEDs whose images show another LED's light."""
+    order: list[int] | None
+    """The LED order the images show (None: theirs, or not clear)."""
+    measured: MeasuredGains | None
+    """The LEDs' light against the LED model as measured (None when none was sampled)."""
+    bands: list[DarkBand | LaggedBand]
+    """The LED images' dark, then lagged bands, whose samples a solve leaves out for that LED."""
+    exchanged: list[ExchangedImages]
+    """The images exchanged with a neighbour's."""
+
+
+NOTHING_FOUND = LedFindings([], [], [], None, None, [], [])
+"""No verdict: no undeformed dome to model, or too few LEDs to judge."""
+
+
+def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -> LedFindings:
     """:func:`led_check`, the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
     when it sampled none), the LED images' bands whose samples a solve leaves out for that LED
     (:func:`.dark_band_mask`; the LED itself is kept): dark bands (:func:`_dark_rows`: rows or columns read while
@@ -143,7 +156,7 @@ def led_check_measured(
     misplaced images' check; not among those)."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], [], None, None, [], []
+        return NOTHING_FOUND
     names = image_names(press)
     count = len(live)
     said, repeated, lagged, everywhere = _repeated_line(press, names)
@@ -156,7 +169,8 @@ def led_check_measured(
     image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, count)
-        return _said_repeated(said, left_out) + lagged_notes + jpeg_notes, left_out, [], None, None, list(lagged), []
+        notes = _said_repeated(said, left_out) + lagged_notes + jpeg_notes
+        return LedFindings(notes, left_out, [], None, None, list(lagged), [])
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
@@ -204,7 +218,7 @@ def led_check_measured(
     measured = MeasuredGains(tuple(live), relative)
     exchanged = _model_exchanges(press, names, corr, [live[k] for k in judged], live, misplaced)
     order = detected_order(shows, len(press.leds))
-    return notes, left_out, misplaced, order, measured, [*dark, *lagged], exchanged
+    return LedFindings(notes, left_out, misplaced, order, measured, [*dark, *lagged], exchanged)
 
 
 def _model_exchanges(

@@ -64,8 +64,9 @@ from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturat
 from .image_stats import led_levels, lit_leds
 from .interreflection import compensate
 from .led_checks import (
+    NOTHING_FOUND,
     ExchangedImages,
-    MeasuredGains,
+    LedFindings,
     dark_rows,
     drift_samples,
     exposure_drift_note,
@@ -382,17 +383,7 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 """Report entries that list LEDs (0-based): renumbered to the capture's LEDs where a solve had a subset of them."""
 
 
-def _capture_notes(
-    press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[
-    list[str],
-    list[int],
-    list[int],
-    list[int] | None,
-    MeasuredGains | None,
-    list[DarkBand | LaggedBand],
-    list[ExchangedImages],
-]:
+def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True) -> LedFindings:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
     images show another LED's light (0-based), the order the images show (None: theirs, or not clear), the LEDs'
@@ -408,25 +399,15 @@ def _capture_notes(
         if say:
             log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out, misplaced, order, measured, dark, exchanged = _led_notes(press, leds, options, say)
-    return notes + led_notes, left_out, misplaced, order, measured, dark, exchanged
+    found = _led_notes(press, leds, options, say)
+    return found._replace(notes=notes + found.notes)
 
 
-def _led_notes(
-    press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[
-    list[str],
-    list[int],
-    list[int],
-    list[int] | None,
-    MeasuredGains | None,
-    list[DarkBand | LaggedBand],
-    list[ExchangedImages],
-]:
+def _led_notes(press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True) -> LedFindings:
     """:func:`.led_checks.led_check_measured` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], [], [], None, None, [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return NOTHING_FOUND  # no undeformed dome to model; a wrong LED count is refused by the solve
     live = _live_leds(press, options)
     checks = led_check_measured(press, leds, live)
     for note in checks[0] if say else ():
