@@ -199,6 +199,13 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
             continue
         _, method = _result_target(press, found, method, other_capture)
         pairs.append((press, found))
+    if not pairs and (frames := _frame_results(result)):
+        raise CaptureError(
+            f"--result {result}: holds results of image frames (`nlips infer MODEL FRAMES`; e.g. {frames[0].name}), "
+            f"which carry no ground truth, not results of the presses of {path}: infer the presses themselves "
+            f"(`nlips infer MODEL {shell_word(path)} --out DIR`, then `nlips eval {shell_word(path)} --result DIR`), "
+            f"or score one frame against the press it shows with `nlips eval PRESS --result {shell_word(frames[0])}`"
+        )
     if not pairs:
         raise CaptureError(
             f"--result {result}: holds no result of the presses of {path} (looked for {result}/PRESS/"
@@ -215,6 +222,14 @@ def _result_target(press: Path, result: Path, method: str | None, other_capture:
 
     if not is_press_folder(press):
         raise CaptureError(f"{press}: --result needs PATH to be the press folder the result was made from")
+    if not has_reconstruction(result) and (frames := _frame_results(result)):
+        shown = _tricolor_identity(press)
+        mine = next((frame for frame in frames if _frame_of(frame) == shown), None)
+        raise CaptureError(
+            f"--result {result}: holds results of image frames (`nlips infer MODEL FRAMES`; e.g. {frames[0].name}), "
+            f"not one result: score the one of {press}'s frame with `nlips eval {shell_word(press)} --result "
+            f"{shell_word(mine) if mine else shell_word(result) + '/FRAME'}`"
+        )
     if not has_reconstruction(result):
         raise CaptureError(f"--result {result}: no reconstruction there (result.npz)")
     try:
@@ -227,6 +242,33 @@ def _result_target(press: Path, result: Path, method: str | None, other_capture:
     if report is not None:
         _check_made_from(press, result, report, other_capture)
     return [press], method or named or "nlips"
+
+
+def _frame_results(folder: Path) -> list[Path]:
+    """The result folders in ``folder`` whose report.json records an image frame as input (``nlips infer MODEL
+    FRAMES --out folder`` writes folder/FRAME), in name order; [] when none (or ``folder`` is no folder).
+
+    Why: `nlips eval PRESSES --result FRAMES_OUT` said only that FRAMES_OUT "holds no result of the presses" (it
+    looked for FRAMES_OUT/PRESS/nlipsnet), and `nlips eval PRESS --result FRAMES_OUT` "no reconstruction there": a
+    frame's result is scored one at a time against the press it shows, or the presses are inferred themselves."""
+    from ..core.reconstruction import has_reconstruction
+
+    if not folder.is_dir():
+        return []
+    return [d for d in sorted(folder.iterdir()) if has_reconstruction(d) and _frame_of(d) is not None]
+
+
+def _frame_of(result: Path) -> str | None:
+    """The identity of the image frame the result ``result`` records as its input; None when it records none, or
+    a press, or its report.json cannot be read."""
+    from ..core.errors import CaptureError
+    from ..core.reconstruction import read_report
+
+    try:
+        recorded = _recorded_input(read_report(result))
+    except CaptureError:
+        return None
+    return recorded[1] if recorded is not None and recorded[0] == "frame" else None
 
 
 def _check_made_from(press: Path, result: Path, report: dict, other_capture: bool) -> None:

@@ -1008,6 +1008,16 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
         len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
     )
     assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
+    # the frames' results given as the results of a folder of presses, or of one press (s34-leftovers: "holds no
+    # result of the presses" / "no reconstruction there", no hint that these are a frame's, scored one at a time)
+    _, root = tiny_model
+    assert main(["eval", str(root), "--result", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--result {out}: holds results of image frames" in err[0], err
+    assert f"`nlips infer MODEL {root} --out DIR`, then `nlips eval {root} --result DIR`" in err[0]
+    assert main(["eval", str(root / "a_sphere"), "--result", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"`nlips eval {root / 'a_sphere'} --result {out / 'a_sphere'}`" in err[0], err
 
 
 def test_a_folder_holding_only_a_copied_tricolor_png_is_a_folder_of_frames(tiny_model, tmp_path, capsys):
