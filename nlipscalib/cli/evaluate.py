@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.shell_words import shell_word
+from .options import add_allow_edited
 
 if TYPE_CHECKING:  # named in hints only: imported when a result is scored
     import numpy as np
@@ -64,6 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="pixels to score: all (default: every pixel valid in both the truth and the result) or contact (only "
         "those of the truth's contact region)",
     )
+    add_allow_edited(p, "score against the ground truth of")
     p.set_defaults(func=run)
 
 
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             truth = None
             try:
-                truth = _ground_truth(folder)  # its arrays are inflated as they are scored
+                truth = _ground_truth(folder, args.allow_edited)  # its arrays are inflated as they are scored
                 scores = _scores(folder, rec, out if args.other_capture else None, truth)
             except CaptureError as exc:
                 # in a batch, a damaged gt.npz fails its press alone, as a damaged result does (it failed the table);
@@ -499,10 +501,14 @@ def _far_from_truth(depth: np.ndarray | None, true_depth: np.ndarray) -> str | N
     return f"its depth is {gap:.2f} mm (median over {int(both.sum())} pixels) from"
 
 
-def _ground_truth(folder: Path):
-    """The press's GroundTruth or None, without decoding its images (only gt.npz is needed)."""
+def _ground_truth(folder: Path, allow_edited: bool = False):
+    """The press's GroundTruth or None, without decoding its images (only gt.npz is needed). Unless
+    ``allow_edited`` (``--allow-edited``), CaptureError in one line when gt.npz is not the size the press's
+    checksums.json records (:func:`nlipscalib.core.press_checksums.check_unchanged`: a stat): another press's copied
+    over it passed GroundTruth's checks (the same shape) and scored the result against the wrong surface."""
     from ..core.camera import Camera
     from ..core.errors import CaptureError
+    from ..core.press_checksums import check_unchanged
     from ..core.press_meta import read_meta
     from ..core.surface_files import GroundTruth
 
@@ -512,6 +518,8 @@ def _ground_truth(folder: Path):
     path = folder / meta["ground_truth"]
     if not path.is_file():
         raise CaptureError(f"{path}: listed in meta.json but missing")
+    if not allow_edited:
+        check_unchanged([folder], names=lambda _: {str(meta["ground_truth"])})
     try:
         shape = Camera.from_dict(meta["camera"]).shape
     except (TypeError, ValueError) as exc:
