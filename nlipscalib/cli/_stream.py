@@ -342,7 +342,8 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         "--device",
         default="cpu",
         help="where frames are inferred: cpu (default) or cuda / cuda:N: every step on that GPU with PyTorch "
-        "(the same change rule and results as on the CPU; ~240-360 frames/s at 640x480 on an H200)",
+        "(the same change rule and results as on the CPU; ~210-350 frames/s at 640x480 on an H100, the paper's "
+        "net to a 64-64-64 one)",
     )
     p.add_argument(
         "--full-frame",

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.shell_words import shell_word
+from .options import add_allow_edited
 
 if TYPE_CHECKING:  # named in hints only: imported when a result is scored
     import numpy as np
@@ -64,6 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="pixels to score: all (default: every pixel valid in both the truth and the result) or contact (only "
         "those of the truth's contact region)",
     )
+    add_allow_edited(p, "score against the ground truth of")
     p.set_defaults(func=run)
 
 
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             truth = None
             try:
-                truth = _ground_truth(folder)  # its arrays are inflated as they are scored
+                truth = _ground_truth(folder, args.allow_edited)  # its arrays are inflated as they are scored
                 scores = _scores(folder, rec, out if args.other_capture else None, truth)
             except CaptureError as exc:
                 # in a batch, a damaged gt.npz fails its press alone, as a damaged result does (it failed the table);
@@ -199,6 +201,13 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
             continue
         _, method = _result_target(press, found, method, other_capture)
         pairs.append((press, found))
+    if not pairs and (frames := _frame_results(result)):
+        raise CaptureError(
+            f"--result {result}: holds results of image frames (`nlips infer MODEL FRAMES`; e.g. {frames[0].name}), "
+            f"which carry no ground truth, not results of the presses of {path}: infer the presses themselves "
+            f"(`nlips infer MODEL {shell_word(path)} --out DIR`, then `nlips eval {shell_word(path)} --result DIR`), "
+            f"or score one frame against the press it shows with `nlips eval PRESS --result {shell_word(frames[0])}`"
+        )
     if not pairs:
         raise CaptureError(
             f"--result {result}: holds no result of the presses of {path} (looked for {result}/PRESS/"
@@ -215,6 +224,14 @@ def _result_target(press: Path, result: Path, method: str | None, other_capture:
 
     if not is_press_folder(press):
         raise CaptureError(f"{press}: --result needs PATH to be the press folder the result was made from")
+    if not has_reconstruction(result) and (frames := _frame_results(result)):
+        shown = _tricolor_identity(press)
+        mine = next((frame for frame in frames if _frame_of(frame) == shown), None)
+        raise CaptureError(
+            f"--result {result}: holds results of image frames (`nlips infer MODEL FRAMES`; e.g. {frames[0].name}), "
+            f"not one result: score the one of {press}'s frame with `nlips eval {shell_word(press)} --result "
+            f"{shell_word(mine) if mine else shell_word(result) + '/FRAME'}`"
+        )
     if not has_reconstruction(result):
         raise CaptureError(f"--result {result}: no reconstruction there (result.npz)")
     try:
@@ -227,6 +244,33 @@ def _result_target(press: Path, result: Path, method: str | None, other_capture:
     if report is not None:
         _check_made_from(press, result, report, other_capture)
     return [press], method or named or "nlips"
+
+
+def _frame_results(folder: Path) -> list[Path]:
+    """The result folders in ``folder`` whose report.json records an image frame as input (``nlips infer MODEL
+    FRAMES --out folder`` writes folder/FRAME), in name order; [] when none (or ``folder`` is no folder).
+
+    Why: `nlips eval PRESSES --result FRAMES_OUT` said only that FRAMES_OUT "holds no result of the presses" (it
+    looked for FRAMES_OUT/PRESS/nlipsnet), and `nlips eval PRESS --result FRAMES_OUT` "no reconstruction there": a
+    frame's result is scored one at a time against the press it shows, or the presses are inferred themselves."""
+    from ..core.reconstruction import has_reconstruction
+
+    if not folder.is_dir():
+        return []
+    return [d for d in sorted(folder.iterdir()) if has_reconstruction(d) and _frame_of(d) is not None]
+
+
+def _frame_of(result: Path) -> str | None:
+    """The identity of the image frame the result ``result`` records as its input; None when it records none, or
+    a press, or its report.json cannot be read."""
+    from ..core.errors import CaptureError
+    from ..core.reconstruction import read_report
+
+    try:
+        recorded = _recorded_input(read_report(result))
+    except CaptureError:
+        return None
+    return recorded[1] if recorded is not None and recorded[0] == "frame" else None
 
 
 def _check_made_from(press: Path, result: Path, report: dict, other_capture: bool) -> None:
@@ -457,10 +501,14 @@ def _far_from_truth(depth: np.ndarray | None, true_depth: np.ndarray) -> str | N
     return f"its depth is {gap:.2f} mm (median over {int(both.sum())} pixels) from"
 
 
-def _ground_truth(folder: Path):
-    """The press's GroundTruth or None, without decoding its images (only gt.npz is needed)."""
+def _ground_truth(folder: Path, allow_edited: bool = False):
+    """The press's GroundTruth or None, without decoding its images (only gt.npz is needed). Unless
+    ``allow_edited`` (``--allow-edited``), CaptureError in one line when gt.npz is not the size the press's
+    checksums.json records (:func:`nlipscalib.core.press_checksums.check_unchanged`: a stat): another press's copied
+    over it passed GroundTruth's checks (the same shape) and scored the result against the wrong surface."""
     from ..core.camera import Camera
     from ..core.errors import CaptureError
+    from ..core.press_checksums import check_unchanged
     from ..core.press_meta import read_meta
     from ..core.surface_files import GroundTruth
 
@@ -470,6 +518,8 @@ def _ground_truth(folder: Path):
     path = folder / meta["ground_truth"]
     if not path.is_file():
         raise CaptureError(f"{path}: listed in meta.json but missing")
+    if not allow_edited:
+        check_unchanged([folder], names=lambda _: {str(meta["ground_truth"])})
     try:
         shape = Camera.from_dict(meta["camera"]).shape
     except (TypeError, ValueError) as exc:

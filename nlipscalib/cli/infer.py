@@ -31,7 +31,7 @@ from ._stream import (
     held_stream_folder,
     saved_line,
 )
-from .options import option, typed
+from .options import add_allow_edited, option, typed
 
 if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are imported when frames are inferred
     from pathlib import Path
@@ -144,6 +144,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
+    add_allow_edited(p, "infer the tri-colour frame of")
     p.set_defaults(func=run, stopped=stopped)
 
 
@@ -202,6 +203,13 @@ def run(args: argparse.Namespace) -> int:
         )
     check_source_arguments(args)
     check_output_arguments(args, args.out)
+    if args.reference and not args.allow_edited:  # a press folder's frame as the undeformed one: checked as the inputs
+        from pathlib import Path
+
+        from ..core.press_folders import is_press_folder
+
+        if is_press_folder(Path(args.reference)):
+            _check_presses_unchanged([Path(args.reference)])
     if stream_input is not None:
         return _run_stream(args, stream_input)
     return _run_stills(args)
@@ -584,6 +592,8 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
 
     t_start = time.perf_counter()
     frames = list(_frames(args.inputs))
+    if not args.allow_edited:  # another frame copied over a press's: one line now, not the wrong frame inferred
+        _check_presses_unchanged([press_folder for _, _, press_folder, _ in frames if press_folder is not None])
     saved = _check_destinations(args, frames)
     early = _settings_before_loading(args)
     if early is not None:  # a run of another model is refused before its model loads (and before a re-run says kept)
@@ -682,6 +692,29 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
             say(f"  {why}" if why.startswith(f"{source}:") else f"  {source}: {why}", warning=True)
         return 1
     return 0
+
+
+def _check_presses_unchanged(presses: Sequence[Path]) -> None:
+    """CaptureError in one line (:func:`nlipscalib.core.press_checksums.check_unchanged`) when a file a press's
+    inference reads (its tri-colour and dark frames, its reference surface) is not the size its checksums.json
+    records: a stat per file and the press's meta.json, no image read. Not its ground truth: read for the error
+    map only, whose damage costs that figure alone (:func:`_ground_truth_reader`).
+
+    Why: `nlips solve`, `calibrate` and `train` refused such a press (s34-checksums); `nlips infer` inferred another
+    session's tri-colour frame copied over a press's without a word, and its result kept the press's name."""
+    from ..core.errors import CaptureError
+    from ..core.press_checksums import check_unchanged
+    from ..core.press_meta import read_meta
+
+    def read(folder: Path) -> list[str]:
+        try:
+            meta = read_meta(folder)
+        except CaptureError:  # said by the press's loader, naming it (a batch goes on with the others)
+            return []
+        images = meta.get("images") if isinstance(meta.get("images"), dict) else {}
+        return [str(name) for name in (images.get("tricolor"), images.get("dark"), meta.get("reference")) if name]
+
+    check_unchanged(list(presses), names=read)
 
 
 def _settings_before_loading(args: argparse.Namespace) -> dict | None:

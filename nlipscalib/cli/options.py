@@ -97,8 +97,9 @@ def check_size_pair(width: int | None, height: int | None, scene_size: tuple[int
 
 def add_allow_edited(parser: argparse.ArgumentParser, what: str) -> None:
     """``--allow-edited`` (dest ``allow_edited``) of every command that reads presses (``solve``, ``calibrate``,
-    ``calibrate-leds``, ``train``): one flag, :data:`nlipscalib.core.press_checksums.EDITED_OPTION`. ``what``: what
-    the command then does with such a press, for its help."""
+    ``calibrate-leds``, ``train``, ``infer``, ``eval``): one flag,
+    :data:`nlipscalib.core.press_checksums.EDITED_OPTION`. ``what``: what the command then does with such a press,
+    for its help."""
     parser.add_argument(
         "--allow-edited",
         action="store_true",

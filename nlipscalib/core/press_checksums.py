@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import zlib
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 from .atomic import write_json, write_new
@@ -122,23 +123,27 @@ def _recorded_problem(path: Path, entry: dict, verify: bool) -> str | None:
 
 # ---------------------------------------------------------------------- the commands that read presses
 EDITED_OPTION = "--allow-edited"
-"""The option of ``nlips solve``, ``calibrate``, ``calibrate-leds`` and ``train`` that uses presses whose files
-differ from their checksums.json (:func:`check_unchanged`): images a lab edited on purpose."""
+"""The option of ``nlips solve``, ``calibrate``, ``calibrate-leds``, ``train``, ``infer`` and ``eval`` that uses
+presses whose files differ from their checksums.json (:func:`check_unchanged`): images a lab edited on purpose."""
 CHANGED_SHOWN = 3
 """How many changed presses a refusal names (the rest are counted)."""
 
 
-def changed_files(folder: str | Path) -> dict[str, str]:
+def changed_files(folder: str | Path, names: Collection[str] | None = None) -> dict[str, str]:
     """The files ``folder``'s checksums.json records that are whole at their ends (:func:`.file_checks.file_problem`)
     but of another size than recorded, each with its problem in a few words: another whole file copied over it (a
     user tidying up, a copy gone wrong), which the readers' own format checks pass. {} when none, or when the folder
-    has no readable record (written before it existed: judged by the readers as before).
+    has no readable record (written before it existed: judged by the readers as before). ``names``: only those
+    files (the ones a command reads: ``nlips infer`` a press's tri-colour and dark frames and reference, ``nlips
+    eval`` its ground truth); None: every file recorded.
 
     A ``stat`` per recorded file and one small JSON read; a file's ends are read only where its size differs (a file
     missing, empty or cut short is left to the reader of the press, which names it as before)."""
     folder = Path(folder)
     changed = {}
     for name, entry in read_checksums(folder).items():
+        if names is not None and name not in names:
+            continue
         try:
             size = os.stat(folder / name).st_size
         except OSError:
@@ -148,15 +153,20 @@ def changed_files(folder: str | Path) -> dict[str, str]:
     return changed
 
 
-def check_unchanged(folders: list[str | Path], remedy: str | None = None) -> None:
+def check_unchanged(
+    folders: list[str | Path], remedy: str | None = None, names: Callable[[Path], Collection[str]] | None = None
+) -> None:
     """CaptureError (exit 2) in one line naming the first changed file (:func:`changed_files`) of ``folders`` (press
     folders, the reference among them), the count of other presses changed, and what to do: ``remedy`` or copy or
     capture the press again; :data:`EDITED_OPTION` to use it as it is. Nothing when every one is unchanged.
+    ``names(folder)``: the files of each folder to compare (those the command reads); None: every file recorded.
 
     Why: a press with another whole image copied over one (another press's LED image, a tri-colour frame of another
     session) passed every reader's checks (a whole PNG of the camera's size): ``nlips solve`` solved it, ``nlips
     calibrate`` sampled it and ``nlips train`` learned from it without a word."""
-    changed = {Path(f): problems for f in folders if (problems := changed_files(f))}
+    changed = {
+        Path(f): problems for f in folders if (problems := changed_files(f, None if names is None else names(Path(f))))
+    }
     if not changed:
         return
     (first, problems), *others = changed.items()

@@ -378,6 +378,7 @@ def _solve_and_save(
         press,
         roi=settings.roi,
         leds=settings.leds,
+        leds_name=settings.leds_file,
         options=settings.options,
         backend=settings.backend,
         progress=progress,

@@ -121,7 +121,10 @@ class ExchangedImages(NamedTuple):
     line: str
     """What was found, naming the capture and the files, without what is done about it (the solve's)."""
     against: str = "model"
-    """What told it: "model" (the LED model's light) or "reference" (the undeformed capture's images)."""
+    """What told it: "model" (the LED model's light) or "reference" (the undeformed capture's images); "leds": the
+    LED model given (``--leds FILE``), its LEDs where the design places each other (:func:`given_leds_exchange`)."""
+    head: str = ""
+    """The line up to its cause: the capture, the files and the correlations ("" when the line is one piece)."""
 
 
 class LedFindings(NamedTuple):
@@ -250,13 +253,48 @@ def _model_exchanges(
             own, other = judged[k] + 1, judged[m] + 1
             said.append(f"{names[judged[k]]} {among[k, k]:.2f} with LED {own}'s, {among[k, m]:.2f} with LED {other}'s")
         whose = "the other's" if len(leds) == 2 else "the next one's"
-        line = (
+        head = (
             f"{press.folder}: {_listed(names, leds)} look exchanged (each correlates with {whose} modelled "
-            f"light of the undeformed dome better than with its own LED's: {'; '.join(said)}): their images were "
-            "captured in each other's place (the LED wiring, the controller's LED order or the images' order)"
+            f"light of the undeformed dome better than with its own LED's: {'; '.join(said)})"
         )
-        found.append(ExchangedImages(tuple(leds), line))
+        cause = (
+            ": their images were captured in each other's place (the LED wiring, the controller's LED order or the "
+            "images' order)"
+        )
+        found.append(ExchangedImages(tuple(leds), head + cause, head=head))
     return found
+
+
+def given_leds_exchange(
+    found: ExchangedImages, design: Sequence[Led], given: Sequence[Led], name: str
+) -> ExchangedImages:
+    """``found`` (images exchanged against the LED model given, ``--leds FILE``) said to be the LED model's when
+    ``given`` holds those LEDs each at the place ``design`` (the press's meta.json) gives the next
+    (:func:`nlipscalib.core.led_exchange.exchanged_leds`): the press's images then show the design's order, and the
+    file is the likelier exchanged (calibrated on images captured in each other's place and kept so, ``nlips
+    calibrate-leds --keep-led-order``); ``found`` itself otherwise.
+
+    Why: the line said the press's images were captured in each other's place and that solving them as captured was
+    right "only when the LED model misplaces those LEDs", while the model given was the one misplacing them, and the
+    file it came from was not named (s34-solveswap, the twin's sphere with such a file)."""
+    from ..core.led_exchange import exchanged_leds
+
+    if found.against != "model" or not found.head:
+        return found
+    places = [np.array([led.position for led in leds], np.float64) for leds in (design, given)]
+    if sorted(found.leds) not in [sorted(cycle) for cycle in exchanged_leds(*places)]:
+        return found
+    where = []
+    for n, i in enumerate(found.leds):
+        j = found.leds[(n + 1) % len(found.leds)]
+        own, other = (float(np.linalg.norm(places[1][i] - places[0][k])) for k in (i, j))
+        where.append(f"LED {i + 1} {other:.2f} mm from LED {j + 1}'s place, {own:.2f} mm from its own")
+    line = (
+        f"{found.head} against the LEDs of {name}, which holds them at each other's places in the press's design "
+        f"(meta.json; {'; '.join(where)}) while the press's images show the design's order: {name} is the likelier "
+        "exchanged (calibrated on images captured in each other's place and kept so)"
+    )
+    return ExchangedImages(found.leds, line, "leds", found.head)
 
 
 def _listed(names: list[str], leds: Sequence[int]) -> str:

@@ -71,6 +71,7 @@ from .led_checks import (
     drift_samples,
     exposure_drift_note,
     exposure_ratio,
+    given_leds_exchange,
     image_names,
     led_check_measured,
     led_gains,
@@ -102,7 +103,9 @@ __all__ = ["FILL_ROWS", "REFIT_ALTERNATIONS", "UPDATE_ROWS", "led_channel_sum", 
 
 
 def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
-    """Solve one press; see :func:`_solve_press` for the parameters (the same keywords).
+    """Solve one press; see :func:`_solve_press` for the parameters (the same keywords), and ``leds_name``: where
+    ``leds`` came from (an LED file's path), named when the checks find them the exchanged ones (None: "the LEDs
+    given (--leds)").
 
     ``press`` and ``indirect`` may also be press folders' paths (str or Path), loaded by :func:`.as_press` (all
     their LEDs): a script's ``solve_press("out/press", indirect="out/reference")`` failed deep inside the solve
@@ -156,6 +159,7 @@ def _rays_ahead(press: Press) -> None:
 def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     """:func:`solve_press`'s body on a loaded press: the LED checks, the solve and its report."""
     keep_order = not kwargs.pop("reorder_leds", True)
+    leds_name = kwargs.pop("leds_name", None)
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
     led_notes, left_out, misplaced, order, measured, dark, exchanged = checks
     if order is not None and not keep_order:  # the images' own order: the physics is right again
@@ -170,6 +174,9 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         named = [*misplaced, *(i for found in exchanged for i in found.leds)]
         fitting = measured.live if measured is not None else ()
         exchanged += reference_exchanges(press, kwargs["indirect"], samples, named, fitting)
+    if kwargs.get("leds") is not None:  # the LED model given may be the one holding them exchanged
+        name = leds_name or "the LEDs given (--leds)"
+        exchanged = [given_leds_exchange(found, press.leds, kwargs["leds"], name) for found in exchanged]
     led_notes += _exchanged_notes(exchanged, keep_order)
     if misplaced and kwargs.get("check_sensor", True):  # out of order: they misfit any description (their warning)
         kwargs["check_sensor"] = None
@@ -323,6 +330,11 @@ EXCHANGE_REFUSED = {
     "reference": (
         "; not solved: put the exchanged capture's images in the LEDs' order (their files, or images.leds in "
         f"meta.json) and run again, or pass {KEEP_ORDER_FLAG} to solve them as captured"
+    ),
+    "leds": (
+        "; not solved: calibrate the LEDs again on an undeformed capture with its images in the LEDs' order (nlips "
+        f"calibrate-leds) and solve with that file, or solve without --leds, or pass {KEEP_ORDER_FLAG} to solve "
+        "them as captured"
     ),
 }
 """The tail of the solve's refusal of LED images exchanged with a neighbour's (:func:`_exchanged_notes`), as ``nlips

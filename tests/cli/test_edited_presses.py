@@ -112,3 +112,22 @@ def test_verify_records_older_folders_once_whole_and_names_damaged_ones(tmp_path
     assert main(["verify", str(root / "press_0001")]) == 1
     assert "led_01.png changed since it was written" in capsys.readouterr().err + caplog.text
     assert main(["solve", str(root / "press_0001"), "--no-progress"]) == 2
+
+
+def test_eval_refuses_a_ground_truth_copied_over_naming_it_unless_allowed(tmp_path, capsys):
+    """`nlips eval` read a press's gt.npz without its checksums.json: another press's ground truth copied over it (a
+    whole file of the same shape) scored the result against the wrong surface without a word (s34-leftovers). Now one
+    line naming the file, exit 2; --allow-edited scores it as it is."""
+    root = _presses(tmp_path / "presses")
+    press = root / "press_0001"
+    assert main(["solve", str(press), "--roi", "auto", "--no-progress", "--no-figures"]) == 0
+    other = root / "press_0002" / "gt.npz"
+    assert other.stat().st_size != (press / "gt.npz").stat().st_size  # a sphere's and a cube's surfaces
+    changed = _copy_over(other, press / "gt.npz")
+    capsys.readouterr()
+    assert main(["eval", str(press)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and f"error: {changed}: changed since it was written (" in err[0] and "--allow-edited" in err[0]
+    )
+    assert main(["eval", str(press), "--allow-edited"]) == 0

@@ -711,3 +711,23 @@ def test_a_press_with_two_neighbouring_led_images_exchanged_is_refused_in_one_li
     assert main(["--no-progress", "solve", str(press), "--config", str(cfg), "--no-figures", "--keep-led-order"]) == 0
     report = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))
     assert report["leds_exchanged"] == [[2, 3]]
+
+
+def test_an_led_file_with_two_neighbouring_leds_exchanged_is_named_in_the_refusal(data, capsys):
+    """`nlips solve PRESS --leds FILE`, FILE holding LED 3 at LED 4's place and back (calibrated on exchanged
+    images, kept so), the press clean: the line blamed the press's images ("the LED model misplaces those LEDs")
+    and named no file. Now it names FILE as the likelier exchanged; exit 2, nothing written."""
+    root, cfg = data
+    press = root / "press_a"
+    leds = json.loads((press / "meta.json").read_text(encoding="utf-8"))["leds"]
+    leds[2], leds[3] = leds[3], leds[2]
+    led_file = root / "leds_exchanged.json"
+    led_file.write_text(json.dumps({"leds": leds}), encoding="utf-8")
+    capsys.readouterr()
+    argv = ["--no-progress", "solve", str(press), "--config", str(cfg), "--no-figures", "--leds", str(led_file)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    (line,) = [text for text in err.splitlines() if text.strip()]
+    assert f"{press}: led_03.png and led_04.png look exchanged" in line and "Traceback" not in err
+    assert f"{led_file} is the likelier exchanged" in line and "misplaces those LEDs" not in line
+    assert not (press / "nlips" / "result.npz").exists()

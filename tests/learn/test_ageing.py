@@ -16,6 +16,7 @@ from nlipscalib.cli import main
 from nlipscalib.core.imageio import read_png16, write_png16
 from nlipscalib.core.press_meta import read_meta
 from nlipscalib.learn.infer import Predictor, drift_warning, mismatch_warning
+from tests.solver.twin_helpers import recorded_anew
 
 from .conftest import HELD_OUT
 
@@ -31,6 +32,7 @@ def _aged(press, out, gains):
     tricolor, dark = (read_png16(out / images[key]).astype(np.float64) for key in ("tricolor", "dark"))
     aged = dark + (tricolor - dark) * np.asarray(gains)
     write_png16(out / images["tricolor"], np.clip(np.rint(aged), 0, 65535).astype(np.uint16))
+    recorded_anew(out)  # captured so (an aged sensor's frame), not edited after capture: its record says so
     return out
 
 

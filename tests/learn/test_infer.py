@@ -1008,6 +1008,47 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
         len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
     )
     assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
+    # the frames' results given as the results of a folder of presses, or of one press (s34-leftovers: "holds no
+    # result of the presses" / "no reconstruction there", no hint that these are a frame's, scored one at a time)
+    _, root = tiny_model
+    assert main(["eval", str(root), "--result", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--result {out}: holds results of image frames" in err[0], err
+    assert f"`nlips infer MODEL {root} --out DIR`, then `nlips eval {root} --result DIR`" in err[0]
+    assert main(["eval", str(root / "a_sphere"), "--result", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"`nlips eval {root / 'a_sphere'} --result {out / 'a_sphere'}`" in err[0], err
+
+
+def test_a_press_whose_tricolor_frame_was_copied_over_is_refused_unless_allowed(tiny_model, tmp_path, capsys):
+    """`nlips infer` read a press's tri-colour frame without its checksums.json (s34-checksums added the size check
+    to solve, calibrate and train): another press's frame copied over it was inferred and saved under the press's
+    name without a word. Now one line naming the file, exit 2, nothing written; --allow-edited infers it as it is.
+    An LED image copied over is no reason: the inference reads none."""
+    import shutil
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    press = tmp_path / "press"
+    shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips*"))
+    (press / "led_04.png").write_bytes((root / NAMES[1] / "led_04.png").read_bytes())
+    assert (press / "led_04.png").stat().st_size != (root / NAMES[0] / "led_04.png").stat().st_size
+    assert main(["infer", str(model), str(press), "--no-figures"]) == 0
+    shutil.rmtree(press / "nlipsnet")
+    frame = press / "tricolor.png"
+    frame.write_bytes((root / NAMES[1] / "tricolor.png").read_bytes())
+    capsys.readouterr()
+    assert main(["infer", str(model), str(press), "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"error: {frame}: changed since it was written (" in err[0] and "--allow-edited" in err[0]
+    assert not (press / "nlipsnet").exists()
+    assert main(["infer", str(model), str(press), "--no-figures", "--allow-edited"]) == 0
+    assert (press / "nlipsnet" / "result.npz").is_file()
+    capsys.readouterr()  # the press as --reference FRAME: its frame is read as the undeformed one, checked alike
+    argv = ["infer", str(model), str(root / NAMES[2]), "--out", str(tmp_path / "o"), "--reference", str(press)]
+    assert main(argv) == 2
+    assert f"error: {frame}: changed since it was written (" in capsys.readouterr().err
 
 
 def test_a_folder_holding_only_a_copied_tricolor_png_is_a_folder_of_frames(tiny_model, tmp_path, capsys):
@@ -1037,12 +1078,14 @@ def test_a_press_of_another_dome_is_refused_as_another_sensor(tiny_model, tmp_pa
 
     from nlipscalib.core.capture import Reference
     from tests.learn.test_resume import NAMES
+    from tests.solver.twin_helpers import recorded_anew
 
     model, root = tiny_model
     press = tmp_path / "other_dome"
     shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips"))
     ref = Reference.load(press / "reference.npz", load_press(press).camera.shape)
     Reference(depth=ref.depth * 1.05, normals=ref.normals).save(press / "reference.npz")  # a dome 5 % larger
+    recorded_anew(press)  # captured so: its record names the files as they are (not an edit after capture)
     out = tmp_path / "out"
     assert main(["--no-progress", "infer", str(model), str(press), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()

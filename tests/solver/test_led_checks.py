@@ -115,6 +115,31 @@ def test_neighbouring_led_images_exchanged_are_refused_naming_them_unless_kept_a
     assert not any("exchanged" in note for note in clean.report.get("warnings", []))
 
 
+def test_an_led_file_holding_neighbouring_leds_exchanged_is_named_as_the_likelier_culprit(tmp_path):
+    """An LED file calibrated on images captured in each other's place and kept so (``calibrate-leds
+    --keep-led-order``) holds LED 3 at LED 4's design place and back; a clean press solved with it was refused
+    as "led_03.png and led_04.png look exchanged ... (right only when the LED model misplaces those LEDs ...)",
+    blaming the press and naming no file. Now the line names the file (``leds_name``) as the likelier exchanged,
+    the press's images showing its design's order; an exchanged press with a clean file is still the press's."""
+    from nlipscalib.core.errors import CaptureError
+
+    options = SolverOptions(max_iters=2)
+    clean = _press(tmp_path, "clean")
+    swapped = list(clean.leds)
+    swapped[2], swapped[3] = swapped[3], swapped[2]
+    with pytest.raises(CaptureError) as refused:
+        solve_press(clean, options=options, leds=swapped, leds_name="cal/leds.json")
+    line = str(refused.value)
+    assert line.startswith(f"{clean.folder}: led_03.png and led_04.png look exchanged (") and "\n" not in line
+    assert "against the LEDs of cal/leds.json, which holds them at each other's places" in line
+    assert "cal/leds.json is the likelier exchanged" in line and "calibrate the LEDs again" in line
+    assert "captured in each other's place (the LED wiring" not in line
+    press = _press(tmp_path, "exchanged", _exchanged(2, 3))
+    with pytest.raises(CaptureError) as theirs:
+        solve_press(press, options=options, leds=list(press.leds), leds_name="cal/leds.json")
+    assert "cal/leds.json" not in str(theirs.value) and "(the LED wiring" in str(theirs.value)
+
+
 def test_an_undeformed_capture_with_neighbouring_images_exchanged_is_refused_naming_it(tmp_path):
     """The press's own images in order, the undeformed capture it is solved with (``--reference``) holding
     led_03.png and led_04.png exchanged: the press's light was compared with the wrong LEDs' there (the twin's
