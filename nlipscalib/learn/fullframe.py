@@ -68,6 +68,14 @@ class FullFrame:
         row, col = np.divmod(np.flatnonzero(valid), self.shape[1])
         self.x = torch.as_tensor(np.stack([col, row], 1).astype(np.float32), device=device)  # u = column, v = row
         self.net = fused_net(model.net).to(device)
+        if model.smoothing_colour:  # the device path has the Gaussian only (_GelFilter)
+            from ..core.errors import CaptureError
+
+            raise CaptureError(
+                f"{model.path}: its inputs' prefilter stops at colour edges (smoothing_colour "
+                f"{model.smoothing_colour:g}), which the whole-frame device path does not do yet: infer on the CPU "
+                "path (no --device, no --full-frame)"
+            )
         self.filter = _GelFilter(valid, model.smoothing_px, device)
         # the whole gel (every pixel's normal from the network, or a region the boxes cannot solve) and the
         # changed pixels' boxes (the reference elsewhere, as on the CPU path)

@@ -27,6 +27,21 @@ MAX_SIGMA_PX = 50.0
 is 0-3 px), and OpenCV refuses a kernel of ~6 sigma once it exceeds an int ("Can't parse 'ksize'")."""
 
 
+MAX_COLOUR_SIGMA = 1.0
+"""Largest colour sigma accepted (linear units): beyond it the colour weight is ~1 for any two gel colours (0-1 per
+channel), the Gaussian alone; useful values are 0.03-0.12 (Q2 medium, docs/experiments/RESULTS.md)."""
+
+
+def check_colour_sigma(colour_sigma: object, where: str) -> float:
+    """``colour_sigma`` as a float in [0, :data:`MAX_COLOUR_SIGMA`]; else ConfigError naming ``where``."""
+    from ..core.config import is_finite_number
+    from ..core.errors import ConfigError
+
+    if not (is_finite_number(colour_sigma) and 0 <= colour_sigma <= MAX_COLOUR_SIGMA):
+        raise ConfigError(f"{where} must be a colour sigma in [0, {MAX_COLOUR_SIGMA:g}], got {colour_sigma!r}")
+    return float(colour_sigma)
+
+
 def check_sigma(sigma_px: object, where: str) -> float:
     """``sigma_px`` as a float in [0, :data:`MAX_SIGMA_PX`]; else ConfigError naming ``where`` (an option or
     a file's key)."""
@@ -50,14 +65,19 @@ class Prefilter:
     ----------
     valid : (H, W) bool -- pixels that see the gel
     sigma_px : Gaussian sigma in pixels; 0 turns the filter off (frames pass unchanged)
+    colour_sigma : sigma of the colour weight (linear units, L1 over r, g, b; module docstring); 0: the Gaussian
+        alone, the same bits as without it
     """
 
-    def __init__(self, valid: np.ndarray, sigma_px: float):
+    def __init__(self, valid: np.ndarray, sigma_px: float, colour_sigma: float = 0.0):
         if valid.ndim != 2:
             raise ShapeError(f"valid must be (H, W), got {valid.shape}")
         if not (0 <= sigma_px <= MAX_SIGMA_PX and math.isfinite(sigma_px)):
             raise ShapeError(f"prefilter sigma must be in [0, {MAX_SIGMA_PX:g}] px, got {sigma_px!r}")
+        if not (0 <= colour_sigma <= MAX_COLOUR_SIGMA and math.isfinite(colour_sigma)):
+            raise ShapeError(f"prefilter colour sigma must be in [0, {MAX_COLOUR_SIGMA:g}], got {colour_sigma!r}")
         self.sigma = float(sigma_px)
+        self.colour_sigma = float(colour_sigma)
         self.radius = kernel_radius(self.sigma)
         self.valid = valid.astype(bool)
         self._weight = self._blur(self.valid.astype(np.float32)) if self.radius else None
@@ -85,8 +105,18 @@ class Prefilter:
         y0, y1 = max(rows.start - r, 0), min(rows.stop + r, image.shape[0])
         x0, x1 = max(cols.start - r, 0), min(cols.stop + r, image.shape[1])
         grown = np.where(self.valid[y0:y1, x0:x1, None], image[y0:y1, x0:x1], 0).astype(np.float32)  # NaN-safe
-        out = self._blur(grown)[rows.start - y0 : rows.stop - y0, cols.start - x0 : cols.stop - x0]
+        inside = (slice(rows.start - y0, rows.stop - y0), slice(cols.start - x0, cols.stop - x0))
+        if self.colour_sigma:  # off the gel black: the colour weight leaves it out, no normalisation needed
+            return self._edge_stopping(grown)[inside]
+        out = self._blur(grown)[inside]
         return out / np.maximum(self._weight[rows, cols], np.float32(1e-6))[..., None]
+
+    def _edge_stopping(self, a: np.ndarray) -> np.ndarray:
+        """OpenCV's bilateral filter of ``a`` (module docstring): a window's values equal the whole frame's there
+        (tested), as the Gaussian's do."""
+        cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")
+        k = 2 * self.radius + 1
+        return cv2.bilateralFilter(a, k, self.colour_sigma, self.sigma, borderType=cv2.BORDER_REFLECT_101)
 
     def _blur(self, a: np.ndarray) -> np.ndarray:
         cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")
