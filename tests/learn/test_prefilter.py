@@ -127,7 +127,6 @@ def test_a_colour_sigma_goes_from_the_sampling_options_to_the_samples_the_model_
     import torch
 
     from nlipscalib.core import load_press
-    from nlipscalib.core.errors import CaptureError
     from nlipscalib.learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
     from nlipscalib.learn.infer import Predictor
     from nlipscalib.learn.model import load_model
@@ -148,14 +147,17 @@ def test_a_colour_sigma_goes_from_the_sampling_options_to_the_samples_the_model_
     colours = Prefilter(valid, data.smoothing_px, 0.08)(press.linear(press.tricolor))
     np.testing.assert_array_equal(s["rgb"], colours[s["pixel"][:, 1], s["pixel"][:, 0]])
     assert not np.array_equal(s["rgb"], CalibrationDataset(plain).load(NAMES[1])["rgb"])
-    # the model carries it, inference filters with it; the whole-frame device path refuses it in one line
+    # the model carries it, inference filters with it, on the CPU path and on the whole-frame device path alike
     model = tmp_path / "m.pt"
     train(data, TINY, model, progress=False)
     assert load_model(model).smoothing_colour == 0.08
     predictor = Predictor(model, depth=False)
     assert predictor.prefilter.colour_sigma == 0.08
-    with pytest.raises(CaptureError, match="stops at colour edges .* infer on the CPU path"):
-        Predictor(model, depth=False, full_frame=True)
+    frame = press.linear(press.tricolor)
+    cpu = predictor.predict(frame)
+    whole = Predictor(model, depth=False, full_frame=True).predict(frame)
+    assert cpu.changed.sum() > 20
+    np.testing.assert_allclose(whole.normals[cpu.changed], cpu.normals[cpu.changed], atol=1e-4)
     plain_model = tmp_path / "p.pt"
     train(CalibrationDataset(plain), TINY, plain_model, progress=False)
     assert "smoothing_colour" not in torch.load(plain_model, weights_only=True)  # files as before
