@@ -12,6 +12,19 @@ outside the dome never bleeds into pixels near its edge. The calibration dataset
 sigma of its sampling options; the model file carries it and inference filters identically. OpenCV's
 separable Gaussian does the work (about 1 ms for a 640x480 frame); inference filters only the window
 around the changed pixels.
+
+With a colour sigma (``SamplingConfig.smoothing_colour`` > 0) the filter stops at colour edges: OpenCV's bilateral
+filter, each neighbour's Gaussian weight (same sigma, a disc of the kernel's radius) also times
+``exp(-d^2 / (2 colour^2))``, d the L1 distance of its colour from the pixel's (linear units, over r, g, b). Why: next
+to a steep wall (a coin's engraving) the Gaussian mixes the wall's colour into the flat gel beside it, which the
+network reads as a tilt. On Q2's medium twin 39 % of the coin's flat contact samples lie within 3 px of a wall and
+erred 10-19 deg there against 0.6-1.8 deg for the image model's colour at the true geometry; with a colour sigma of
+0.08 Q2's unseen split went 4.73 -> 3.83 deg, the seen split unchanged (docs/experiments/RESULTS.md, s34-coinflat).
+Neighbours differ by ~0.02 (L1) for sensor noise and by 0.1-1 across a wall, so 0.08 averages the first almost as
+the Gaussian does and leaves out the second. Off the gel the frame is set to 0 (black), which the colour weight
+leaves out too (the gel's colours are 0.3-0.9): no normalisation over the gel is needed. It costs ~2.6x the
+Gaussian's CPU (a 640x480 frame 13.8 against 5.2 ms, a coin press's inference window 2.5 against 1.1 ms:
+benchmarks/RESULTS.md, s34-coinflat); a window's values equal the whole frame's, as the Gaussian's do.
 """
 
 from __future__ import annotations
