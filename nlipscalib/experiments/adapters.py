@@ -276,10 +276,11 @@ def figure_view(press: Press, reference: Path, sampling: dict, margin: int = ROI
     gt = press.ground_truth
     true = np.where(gt.valid[win][..., None], gt.normals[win], np.nan)
     tri = press.linear(press.tricolor)
-    sigma = from_mapping(SamplingConfig, dict(sampling), "experiment sampling").smoothing_px
+    cfg = from_mapping(SamplingConfig, dict(sampling), "experiment sampling")
+    prefilter = Prefilter(reference_arrays(load(reference))["valid"], cfg.smoothing_px, cfg.smoothing_colour)
     return {
         "rgb": tri[win].astype(np.float32),
-        "input": Prefilter(reference_arrays(load(reference))["valid"], sigma)(tri, *win),
+        "input": prefilter(tri, *win),
         "true": true.astype(np.float32),
         "origin": np.array([x0, y0], np.int64),
     }

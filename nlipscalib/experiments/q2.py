@@ -11,7 +11,7 @@ import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..learn.dataset import SamplingConfig
+from ..learn.dataset import SamplingConfig, sampling_record
 from ..learn.train import TrainConfig
 from ..report import experiments as fig
 from ..sim.indenters import IndenterConfig
@@ -184,7 +184,7 @@ class Q2(Experiment):
         ]
 
     def samples(self, cfg: Q2Config) -> dict:
-        return dataclasses.asdict(cfg.sampling)
+        return sampling_record(cfg.sampling)
 
     # ------------------------------------------------------------------ learning
     def learn(self, cfg: Q2Config, tasks: list[Task], out: Path, progress: bool = True) -> dict:

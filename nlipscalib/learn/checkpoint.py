@@ -264,8 +264,9 @@ def sampling_changed(checkpoint: dict, sampling: object) -> str:
     return "; ".join(f"{k} {was.get(k)}, now {now.get(k)}" for k in MODEL_SAMPLING_FIELDS if was.get(k) != now.get(k))
 
 
-MODEL_SAMPLING_FIELDS = ("smoothing_px",)
-"""The sampling options a model file carries (``smoothing_px``: inference filters its inputs with it)."""
+MODEL_SAMPLING_FIELDS = ("smoothing_px", "smoothing_colour")
+"""The sampling options a model file carries (``smoothing_px``, ``smoothing_colour``: inference filters its inputs
+with them)."""
 
 
 def resume(

@@ -11,7 +11,7 @@ A shard holds, for N samples of one press:
 
 - ``pixel`` (N, 2) int16: (u, v) = (column, row) of the sample
 - ``rgb`` (N, 3) float32: the tri-colour image there, linear (``Press.linear``), low-pass filtered
-  with the sampling options' ``smoothing_px`` (:mod:`.prefilter`)
+  with the sampling options' ``smoothing_px`` (and ``smoothing_colour``: :mod:`.prefilter`)
 - ``normal`` (N, 3) float32, unit, camera frame: the label (NLiPs normal; reference normal on the
   undeformed rest outside the solved region)
 - ``true_normal`` (N, 3) float32: the twin's true normal (NaN when the press has no ground truth)
@@ -47,6 +47,7 @@ from .. import __version__
 from ..core import said_once
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
+from ..core.config import OMIT_AT_DEFAULT, to_mapping
 from ..core.errors import CaptureError, ConfigError
 from ..core.file_checks import file_problem
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
@@ -63,7 +64,7 @@ from ..core.shell_words import shell_word
 from ..core.tolerances import FRAME_CHANNEL_DRIFT
 from ..progress import track
 from .change import RULE_VERSION, ChangeDetector
-from .prefilter import Prefilter, check_sigma
+from .prefilter import Prefilter, check_colour_sigma, check_sigma
 
 if TYPE_CHECKING:  # named in hints only: the functions import the capture and reconstruction modules where used
     from ..core.capture import Press
@@ -117,6 +118,12 @@ class SamplingConfig:
     """Sigma (pixels) of the Gaussian low-pass applied to the tri-colour image before its colours become
     samples (:mod:`.prefilter`: cuts per-pixel sensor noise ~3.5x); the model file carries it and
     inference filters alike. 0: raw pixels."""
+    smoothing_colour: float = dataclasses.field(default=0.0, metadata={OMIT_AT_DEFAULT: True})
+    """Colour sigma of that low-pass (linear units, the L1 distance of two pixels' r, g, b): > 0 makes it stop at
+    colour edges (:mod:`.prefilter`'s bilateral filter), so that a steep wall's colour does not bleed into the flat
+    gel beside it (a coin's engraving: Q2's unseen coin 8.56 -> 6.8 deg, docs/experiments/RESULTS.md, s34-coinflat).
+    0: the Gaussian alone, as before; then left out of the sampling record (:func:`sampling_record`). The model
+    file carries it and inference filters alike."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips calibrate` names its option instead
@@ -129,6 +136,14 @@ class SamplingConfig:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
                 raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
         check_sigma(self.smoothing_px, "smoothing_px")
+        check_colour_sigma(self.smoothing_colour, "smoothing_colour")
+
+
+def sampling_record(cfg: SamplingConfig) -> dict:
+    """``cfg`` as JSON values, as index.json records it and the keys of builds, shards and experiment tasks hash it:
+    ``smoothing_colour`` left out while it is 0 (the Gaussian alone; ``core.config.OMIT_AT_DEFAULT``), so that every
+    dataset, shard and task made before the option keeps its record and key."""
+    return to_mapping(cfg)
 
 
 # ---------------------------------------------------------------------- building
@@ -191,7 +206,7 @@ def press_samples(press: Press, rec: Reconstruction, ref: dict, cfg: SamplingCon
         true = np.where(gt.valid[rows, cols][:, None], true, np.nan)
     return {
         "pixel": np.stack([cols, rows], -1).astype(np.int16),
-        "rgb": Prefilter(ref["valid"], cfg.smoothing_px)(tri)[rows, cols],
+        "rgb": Prefilter(ref["valid"], cfg.smoothing_px, cfg.smoothing_colour)(tri)[rows, cols],
         "normal": normal.astype(np.float32),
         "true_normal": true.astype(np.float32),
         "contact": contact[rows, cols],
@@ -308,7 +323,7 @@ def write_index(
         "sensor": sensor,
         "capture": capture,
         "reference": reference,
-        "sampling": dataclasses.asdict(cfg),
+        "sampling": sampling_record(cfg),
         "sample_rules": dict(SAMPLE_RULES),
         "presses": entries,
     }
@@ -592,7 +607,7 @@ def dataset_run(
     options, the reference folder, ``solve``) and ``presses`` (``count``, ``first`` and ``digest`` of their folders)
     """
     folders = [str(Path(f).resolve()) for f in press_folders]
-    options = dataclasses.asdict(cfg) | {"reference": str(Path(reference_folder).resolve())} | (solve or {})
+    options = sampling_record(cfg) | {"reference": str(Path(reference_folder).resolve())} | (solve or {})
     presses = {
         "count": len(folders),
         "first": folders[0] if folders else None,
@@ -700,7 +715,7 @@ def shard_stamp(result: Path, cfg: SamplingConfig, reference_digest: str) -> str
     with path.open("rb") as f:
         content = hashlib.file_digest(f, "sha256").hexdigest()
     rules = ":".join(f"{name}-{version}" for name, version in SAMPLE_RULES.items())
-    key = f"{content}:{json.dumps(dataclasses.asdict(cfg), sort_keys=True)}:{reference_digest}:{rules}"
+    key = f"{content}:{json.dumps(sampling_record(cfg), sort_keys=True)}:{reference_digest}:{rules}"
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -871,15 +886,19 @@ def _checked_entries(presses: object, path: Path) -> list[dict]:
     return presses
 
 
-def _checked_smoothing(sampling: object, path: Path) -> float:
-    """index.json's ``sampling.smoothing_px``, checked (0 when the dataset predates the option): a bad value
-    is named here, not by inference reading the model that carries it ("prefilter sigma must be ...")."""
+def _checked_smoothing(sampling: object, path: Path) -> tuple[float, float]:
+    """index.json's ``sampling.smoothing_px`` and ``sampling.smoothing_colour``, checked (0 when the dataset predates
+    the option): a bad value is named here, not by inference reading the model that carries it ("prefilter sigma
+    must be ...")."""
     if sampling is None:
-        return 0.0
+        return 0.0, 0.0
     if not isinstance(sampling, dict):
         raise CaptureError(f"{path}: 'sampling' must be a mapping of sampling options, got {sampling!r}")
     try:
-        return check_sigma(sampling.get("smoothing_px", 0.0), "'sampling.smoothing_px'")
+        return (
+            check_sigma(sampling.get("smoothing_px", 0.0), "'sampling.smoothing_px'"),
+            check_colour_sigma(sampling.get("smoothing_colour", 0.0), "'sampling.smoothing_colour'"),
+        )
     except ConfigError as exc:
         raise CaptureError(f"{path}: {exc}") from None
 
@@ -919,8 +938,12 @@ class CalibrationDataset:
         remedy = f"{self.remake} to record it (the samples are kept)"
         self.sensor: dict = check_sensor_record(index["sensor"], path, remedy)
         self.entries: list[dict] = _checked_entries(index["presses"], path)
-        self.smoothing_px: float = _checked_smoothing(index.get("sampling"), path)
+        self.smoothing_px: float
         """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
+        self.smoothing_colour: float
+        """Its colour sigma (:attr:`SamplingConfig.smoothing_colour`; 0: the Gaussian alone, and for datasets made
+        before the option)."""
+        self.smoothing_px, self.smoothing_colour = _checked_smoothing(index.get("sampling"), path)
         rules = index.get("sample_rules")
         self.sample_rules: dict | None = rules if isinstance(rules, dict) else None
         """The sampling code's versions its samples were made under (:data:`SAMPLE_RULES`); None for datasets made
@@ -1027,7 +1050,7 @@ class CalibrationDataset:
     def filtered_reference(self) -> np.ndarray:
         """(H, W, 3) float32: the reference tri-colour frame filtered like the samples' colours."""
         ref = self.reference()
-        return Prefilter(ref["valid"], self.smoothing_px)(ref["tricolor"])
+        return Prefilter(ref["valid"], self.smoothing_px, self.smoothing_colour)(ref["tricolor"])
 
     def reference(self) -> dict:
         """The undeformed reference arrays (:func:`reference_arrays`)."""

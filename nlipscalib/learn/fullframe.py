@@ -4,10 +4,10 @@ The CPU path (:mod:`.infer`) gathers the pixels that changed, sends only them th
 and integrates their bounding box: shapes that change every frame. On a GPU fixed shapes are
 cheaper, and they let the whole frame's work be recorded once as a CUDA graph and replayed, so this
 path runs every step on the device with the shapes of the sensor: the tri-colour frame's
-linearisation, the model's Gaussian prefilter (:mod:`.prefilter`'s normalised filter, OpenCV's
-kernel), the network on every gel pixel, the change rule of :mod:`.change` (the same operations),
-the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
-keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
+linearisation, the model's prefilter (:mod:`.prefilter`'s normalised Gaussian, OpenCV's kernel, or its
+bilateral filter with the model's ``smoothing_colour``), the network on every gel pixel, the change rule of
+:mod:`.change` (the same operations), the reference normals kept where nothing changed (as on the CPU path;
+``keep_reference=False`` keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
 changed pixels' boxes as the CPU does (per region where their common box does not apply, an edge box
 where one reaches the image border, a cosine box across the image, a rim box near the gel's outline; a region
 the CPU solves on its sparse path by the CPU's code on the host), after the graph (the box's shape changes per
@@ -68,7 +68,7 @@ class FullFrame:
         row, col = np.divmod(np.flatnonzero(valid), self.shape[1])
         self.x = torch.as_tensor(np.stack([col, row], 1).astype(np.float32), device=device)  # u = column, v = row
         self.net = fused_net(model.net).to(device)
-        self.filter = _GelFilter(valid, model.smoothing_px, device)
+        self.filter = _GelFilter(valid, model.smoothing_px, device, model.smoothing_colour)
         # the whole gel (every pixel's normal from the network, or a region the boxes cannot solve) and the
         # changed pixels' boxes (the reference elsewhere, as on the CPU path)
         # the whole gel's set-up (a minute on two CPU cores for a gel that does not fill the image) only for it
@@ -210,13 +210,23 @@ class FullFrame:
 
 class _GelFilter:
     """:class:`.prefilter.Prefilter` on a torch device: blur(image * valid) / blur(valid), OpenCV's Gaussian
-    kernel, reflected borders (torch's "reflect" is OpenCV's BORDER_REFLECT_101)."""
+    kernel, reflected borders (torch's "reflect" is OpenCV's BORDER_REFLECT_101); with a colour sigma OpenCV's
+    bilateral filter instead (:meth:`_edge_stopping`)."""
 
-    def __init__(self, valid: np.ndarray, sigma_px: float, device: torch.device):
+    def __init__(self, valid: np.ndarray, sigma_px: float, device: torch.device, colour_sigma: float = 0.0):
         torch = _torch()
         self.radius = kernel_radius(sigma_px)
         self.valid = torch.as_tensor(valid, device=device)
-        if self.radius:
+        self.colour = float(colour_sigma)
+        r = self.radius
+        # OpenCV's bilateral window: the offsets within the radius (a disc), each with its spatial Gaussian weight
+        self.offsets = [
+            (dy, dx, float(np.exp(-(dy * dy + dx * dx) / (2 * sigma_px**2))))
+            for dy in range(-r, r + 1)
+            for dx in range(-r, r + 1)
+            if dy * dy + dx * dx <= r * r
+        ]
+        if self.radius and not self.colour:
             cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")
             self.kernel = [float(w) for w in cv2.getGaussianKernel(2 * self.radius + 1, sigma_px, cv2.CV_32F).ravel()]
             self.weight = self._blur(self.valid.to(torch.float32)[None]).clamp_min(1e-6)
@@ -234,12 +244,31 @@ class _GelFilter:
         rows = sum(w * a[:, i : i + H, :] for i, w in enumerate(self.kernel))
         return sum(w * rows[:, :, i : i + W] for i, w in enumerate(self.kernel))
 
+    def _edge_stopping(self, a: torch.Tensor):
+        """(C, H, W) -> (C, H, W): OpenCV's bilateral filter (:mod:`.prefilter`), each offset of the disc weighted by
+        its spatial Gaussian times exp(-d^2 / (2 colour^2)), d the L1 colour distance; the weighted sums of shifted
+        copies, as :meth:`_blur`'s (float32). Off the gel black, which the colour weight leaves out."""
+        F = _torch().nn.functional
+        r = self.radius
+        padded = F.pad(a[None], (r, r, r, r), mode="reflect")[0]
+        H, W = a.shape[1], a.shape[2]
+        total, weight = 0.0, 0.0
+        scale = -0.5 / self.colour**2
+        for dy, dx, near in self.offsets:
+            shifted = padded[:, r + dy : r + dy + H, r + dx : r + dx + W]
+            apart = (shifted - a).abs().sum(0, keepdim=True)
+            w = near * (apart * apart * scale).exp()
+            total, weight = total + w * shifted, weight + w
+        return total / weight
+
     def __call__(self, frame: torch.Tensor):
         """(H, W, 3) -> (H, W, 3) float32 filtered; NaN-safe off the gel."""
         torch = _torch()
         if not self.radius:
             return frame
         inside = torch.where(self.valid[..., None], frame, 0.0).permute(2, 0, 1)
+        if self.colour:
+            return self._edge_stopping(inside).permute(1, 2, 0)
         return (self._blur(inside) / self.weight).permute(1, 2, 0)
 
 

@@ -138,7 +138,7 @@ class Predictor:
         # cost 2-8 ms a 640x480 frame, more than integrating the changed pixels with depth)
         self._reference_surface = None if depth else self._undeformed_surface()
         self.changed = ChangeDetector(self.ref_tricolor, self.valid)
-        self.prefilter = Prefilter(self.valid, self.model.smoothing_px)
+        self.prefilter = Prefilter(self.valid, self.model.smoothing_px, self.model.smoothing_colour)
         self.backend = backend
         self._run = self._backend(backend, threads)
         self._full = None

@@ -11,7 +11,8 @@ Input normalisation (inside the network, so PyTorch and ONNX take the same raw i
   u_n = (u - (W - 1) / 2) / (W / 2), v_n = (v - (H - 1) / 2) / (H / 2)
 - r, g, b: linear tri-colour intensity (``Press.linear``: dark-subtracted, 1 = full scale), low-pass
   filtered over the gel with the file's ``smoothing_px`` (:mod:`.prefilter`; outside the network, as
-  it needs the neighbours), standardised with the training samples' per-channel mean and deviation.
+  it needs the neighbours; with the file's ``smoothing_colour``, if any, it stops at colour edges),
+  standardised with the training samples' per-channel mean and deviation.
 
 The model file (``.pt``, read with ``torch.load(weights_only=True)``: no pickled code) holds the
 weights, the architecture, the normalisation, what it was trained on, the sensor it was calibrated
@@ -201,8 +202,11 @@ def save_model(
     reference: dict,
     info: dict,
     smoothing_px: float = 0.0,
+    smoothing_colour: float = 0.0,
 ) -> Path:
-    """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma."""
+    """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma,
+    ``smoothing_colour`` its colour sigma (written only when > 0: the files of the Gaussian alone stay as they were).
+    """
     import io
 
     from ..core.atomic import write_bytes
@@ -219,6 +223,8 @@ def save_model(
         "info": info,
         "smoothing_px": float(smoothing_px),
     }
+    if smoothing_colour:
+        payload["smoothing_colour"] = float(smoothing_colour)
     buf = io.BytesIO()
     torch.save(payload, buf)
     return write_bytes(path, buf.getvalue())
@@ -240,6 +246,7 @@ class LoadedModel:
         self.reference: dict = {k: v.numpy() for k, v in payload["reference"].items()}
         self.info: dict = payload["info"]
         self.smoothing_px = float(payload.get("smoothing_px", 0.0))  # files from before the prefilter: raw inputs
+        self.smoothing_colour = float(payload.get("smoothing_colour", 0.0))  # the prefilter's colour sigma (0: none)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -251,7 +258,7 @@ def load_model(path: str | Path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
     from ..core.errors import ConfigError
     from ..core.sensor_record import check_sensor_record
-    from .prefilter import check_sigma
+    from .prefilter import check_colour_sigma, check_sigma
 
     torch = _torch()
     path = Path(path)
@@ -283,6 +290,7 @@ def load_model(path: str | Path) -> LoadedModel:
         raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
     try:  # a bad sigma is named here, not by the prefilter at inference ("prefilter sigma must be ...")
         check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
+        check_colour_sigma(payload.get("smoothing_colour", 0.0), "'smoothing_colour'")
     except ConfigError as exc:
         raise CaptureError(f"{path}: {exc}") from None
     _check_layer_shapes(hidden, payload["state_dict"], path)

@@ -442,6 +442,7 @@ def _save_trained(
         reference=data.reference,
         info=info,
         smoothing_px=dataset.smoothing_px,
+        smoothing_colour=dataset.smoothing_colour,
     )
 
 

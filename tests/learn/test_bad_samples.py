@@ -64,6 +64,8 @@ def test_a_shard_with_values_no_capture_gives_is_named(built, tmp_path, capsys, 
         ({"smoothing_px": -3}, "'sampling.smoothing_px' must be a sigma in [0, 50] px, got -3"),
         ({"smoothing_px": 1e9}, "'sampling.smoothing_px' must be a sigma in [0, 50] px, got 1000000000.0"),
         ({"smoothing_px": "wide"}, "'sampling.smoothing_px' must be a sigma in [0, 50] px, got 'wide'"),
+        ({"smoothing_colour": -1}, "'sampling.smoothing_colour' must be a colour sigma in [0, 1], got -1"),
+        ({"smoothing_colour": "edge"}, "'sampling.smoothing_colour' must be a colour sigma in [0, 1], got 'edge'"),
     ],
 )
 def test_a_bad_sampling_record_is_named_when_the_dataset_opens(built, sampling, problem):  # noqa: F811
@@ -127,6 +129,7 @@ def test_a_model_with_a_nan_reference_or_a_bad_sigma_is_named(built, tmp_path, c
         ("nanref", {"reference": nan_reference}, "reference array 'tricolor' is NaN or infinite at 3072 pixels"),
         ("negative", {"smoothing_px": -3.0}, "'smoothing_px' must be a sigma in [0, 50] px, got -3.0"),
         ("nan", {"smoothing_px": float("nan")}, "'smoothing_px' must be a sigma in [0, 50] px, got nan"),
+        ("colour", {"smoothing_colour": 5.0}, "'smoothing_colour' must be a colour sigma in [0, 1], got 5.0"),
     ):
         path = tmp_path / f"{name}.pt"
         torch.save(payload | change, path)
@@ -144,3 +147,9 @@ def test_calibrate_refuses_a_smoothing_sigma_out_of_range(tmp_path, capsys, valu
     _one_line(capsys, "--smoothing must be")
     with pytest.raises(ConfigError, match=r"smoothing_px must be a sigma in \[0, 50\] px"):
         SamplingConfig(smoothing_px=float(value))
+
+
+@pytest.mark.parametrize("value", ["-1", "2", "nan"])
+def test_calibrate_refuses_a_colour_sigma_out_of_range(tmp_path, capsys, value):
+    assert main(["--no-progress", "calibrate", str(tmp_path), "--smoothing-colour", value]) == 2
+    _one_line(capsys, "--smoothing-colour must be a colour sigma in [0, 1]")

@@ -153,7 +153,8 @@ def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_
 @pytest.mark.parametrize(
     "field, value",
     [("min_confidence", 2.0), ("min_confidence", -0.1), ("min_leds", -1), ("rest_cells", 0)]
-    + [("rest_per_cell", -1), ("seed", -1), ("smoothing_px", float("nan")), ("min_leds", 2.5)],
+    + [("rest_per_cell", -1), ("seed", -1), ("smoothing_px", float("nan")), ("min_leds", 2.5)]
+    + [("smoothing_colour", -0.1), ("smoothing_colour", 1.5)],
 )
 def test_sampling_config_refuses_out_of_range_fields(field, value):
     from nlipscalib.core.errors import ConfigError

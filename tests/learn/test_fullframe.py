@@ -78,16 +78,19 @@ def test_the_box_warm_up_solves_a_box_inside_the_gel(device, gel, monkeypatch):
     assert integrator.on_gel[rows, cols].all() and rows.min() > 0 and cols.min() > 0
 
 
+@pytest.mark.parametrize("colour_sigma", [0.0, 0.08, 0.5])
 @pytest.mark.parametrize("device", DEVICES)
-def test_the_devices_prefilter_is_opencvs(device):
+def test_the_devices_prefilter_is_opencvs(device, colour_sigma):
     from nlipscalib.learn.fullframe import _GelFilter
     from nlipscalib.learn.prefilter import Prefilter
 
     _, on_gel, _ = _dome()
-    image = np.random.default_rng(2).uniform(0, 1, on_gel.shape + (3,)).astype(np.float32)
+    image = np.random.default_rng(2).uniform(0.3, 0.9, on_gel.shape + (3,)).astype(np.float32)
+    image[:, 20:] += 0.1  # a colour edge across the gel
     image[~on_gel] = np.nan  # off the gel: never read
-    got = _GelFilter(on_gel, 1.3, torch.device(device))(torch.from_numpy(image).to(device)).cpu().numpy()
-    want = Prefilter(on_gel, 1.3)(image)
+    filt = _GelFilter(on_gel, 1.3, torch.device(device), colour_sigma)
+    got = filt(torch.from_numpy(image).to(device)).cpu().numpy()
+    want = Prefilter(on_gel, 1.3, colour_sigma)(image)
     np.testing.assert_allclose(got[on_gel], want[on_gel], rtol=1e-5, atol=1e-6)
 
 
