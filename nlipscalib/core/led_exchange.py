@@ -143,7 +143,7 @@ def _best_assignment(corr: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     that a clean press's ``nlips solve`` never otherwise spends (:mod:`nlipscalib.solver.led_fit` says so too)."""
     corr = np.nan_to_num(np.asarray(corr, np.float64), nan=-1.0)
     own = np.arange(len(corr))
-    if np.array_equal(corr.argmax(axis=1), own):
+    if corr.size == 0 or np.array_equal(corr.argmax(axis=1), own):  # no images judged (a dead LED's press): none
         return own, np.zeros(len(corr))
     from scipy.optimize import linear_sum_assignment
 

@@ -138,3 +138,9 @@ def test_a_flat_image_or_every_image_in_one_exchange_names_nothing_it_cannot_mea
     assert exchanged_in_shading(corr) == []
     two = _correlation(model[[1, 0]], model[:2])
     assert exchanged_in_shading(two) == []
+
+
+def test_no_image_judged_names_nothing():
+    """A press whose LEDs all went unjudged (a dead LED and a lit dark frame: `calibrate-leds` refusing them) gave
+    exchanged_in_shading an empty (0, 0) correlation: NumPy's "argmax of an empty sequence" instead of the refusal."""
+    assert exchanged_in_shading(np.zeros((0, 0))) == []
