@@ -19,17 +19,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import shlex
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from common import interleaved as interleaved_runs  # noqa: E402
+from common import nlips_process, timing_rows  # noqa: E402
 
 
 def _ms(fn, repeats: int) -> str:
@@ -57,44 +57,17 @@ def in_process(presses: list[Path], dataset: Path | None, repeats: int) -> None:
         print(f"| {label} | {_ms(data.changed_presses, repeats)} |")
 
 
-def _command(checkout: Path, command: str, side: str) -> tuple[float, float, int]:
-    """(wall s, user+sys s, exit status) of one ``nlips`` process run from ``checkout``."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(
-        PYTHONPATH=str(checkout),
-        PYTHONPYCACHEPREFIX=f"/tmp/bench-edited-pyc-{side}",
-        NLIPS_CACHE_DIR=f"/tmp/bench-edited-cache-{side}",
-    )
-    argv = [sys.executable, "-m", "nlipscalib", *shlex.split(command.replace("{side}", side)), "--no-progress"]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    rc = subprocess.run(
-        argv, cwd=tempfile.gettempdir(), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    ).returncode
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, rc
-
-
 def interleaved(commands: list[str], against: Path, pairs: int) -> None:
-    sides = [("now", ROOT), ("before", against)]
+    checkouts = {"now": ROOT, "before": against}
     for command in commands:
-        times = {side: [] for side, _ in sides}
-        for side, checkout in sides:  # warm-up: bytecode caches, the page cache, the disk cache
-            _command(checkout, command, side)
-        for _ in range(pairs):
-            for side, checkout in sides:
-                wall, cpu, rc = _command(checkout, command, side)
-                if rc != 0:
-                    raise SystemExit(f"{side}: nlips {command}: exit {rc}")
-                times[side].append((wall, cpu))
+
+        def run(side: str, command: str = command) -> tuple[float, float, int]:
+            argv = [*shlex.split(command.replace("{side}", side)), "--no-progress"]
+            return nlips_process(checkouts[side], argv, f"edited-{side}")
+
+        times = interleaved_runs(list(checkouts), run, pairs, f"nlips {command}")
         print(f"\n`nlips {command}` (n={pairs}, interleaved)\n\n| side | wall s | user+sys s |\n|---|---|---|")
-        for side, runs in times.items():
-            walls, cpus = [w for w, _ in runs], [c for _, c in runs]
-            print(
-                f"| {side} | {statistics.median(walls):.3f} [{min(walls):.3f}-{max(walls):.3f}] | "
-                f"{statistics.median(cpus):.3f} [{min(cpus):.3f}-{max(cpus):.3f}] |"
-            )
+        print(timing_rows(times, 3))
 
 
 def main() -> None:

@@ -25,9 +25,7 @@ import argparse
 import hashlib
 import json
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,6 +34,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from common import interleaved, nlips_process, timing_rows  # noqa: E402
 
 from nlipscalib.core.file_checks import unusable_files  # noqa: E402
 from nlipscalib.core.press_checksums import CHECKSUMS_FILE, press_file_problems, write_checksums  # noqa: E402
@@ -89,50 +89,20 @@ def _write_anew(folder: Path, names: list[str]) -> None:
     write_checksums(folder, names)
 
 
-def _command(checkout: Path, spec: str, out: str, extra: list[str], side: str) -> tuple[float, float, int]:
-    """(wall s, user+sys s, exit status) of one ``nlips dataset`` process run from ``checkout``."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env.update(
-        PYTHONPATH=str(checkout),
-        PYTHONPYCACHEPREFIX=f"/tmp/bench-checksums-pyc-{side}",
-        NLIPS_CACHE_DIR=f"/tmp/bench-checksums-cache-{side}",
-    )
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    rc = subprocess.run(
-        [sys.executable, "-m", "nlipscalib", "dataset", spec, "--out", out, "--no-progress", *extra],
-        cwd=tempfile.gettempdir(),
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    ).returncode
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return wall, cpu, rc
-
-
 def reruns(args: argparse.Namespace) -> None:
-    sides = [("now", ROOT, args.out, [])]
+    sides = {"now": (ROOT, args.out, [])}
     if args.against:
-        sides.append(("before", Path(args.against), args.before_out, []))
-    sides.append(("now --verify", ROOT, args.out, ["--verify"]))
-    times = {label: [] for label, *_ in sides}
-    for label, checkout, out, extra in sides:  # warm-up: bytecode caches, the page cache
-        _command(checkout, args.spec, out, extra, label.split()[0])
-    for _ in range(args.pairs):
-        for label, checkout, out, extra in sides:
-            wall, cpu, rc = _command(checkout, args.spec, out, extra, label.split()[0])
-            if rc != 0:
-                raise SystemExit(f"{label}: exit {rc}")
-            times[label].append((wall, cpu))
+        sides["before"] = (Path(args.against), args.before_out, [])
+    sides["now --verify"] = (ROOT, args.out, ["--verify"])
+
+    def run(label: str) -> tuple[float, float, int]:
+        checkout, out, extra = sides[label]
+        argv = ["dataset", args.spec, "--out", out, "--no-progress", *extra]
+        return nlips_process(checkout, argv, f"checksums-{label.split()[0]}")
+
+    times = interleaved(list(sides), run, args.pairs, "nlips dataset")
     print(f"\n| rerun of a finished folder (n={args.pairs}, interleaved) | wall s | user+sys s |\n|---|---|---|")
-    for label, runs in times.items():
-        walls, cpus = [w for w, _ in runs], [c for _, c in runs]
-        print(
-            f"| {label} | {statistics.median(walls):.2f} [{min(walls):.2f}-{max(walls):.2f}] | "
-            f"{statistics.median(cpus):.2f} [{min(cpus):.2f}-{max(cpus):.2f}] |"
-        )
+    print(timing_rows(times, 2))
 
 
 def main() -> None:

@@ -62,3 +62,57 @@ def write_section(name: str, body: str) -> None:
     tmp = RESULTS.with_suffix(".tmp")
     tmp.write_text(text, encoding="utf-8")
     tmp.replace(RESULTS)
+
+
+def nlips_process(checkout: Path, args: list[str], tag: str) -> tuple[float, float, int]:
+    """(wall s, user+sys s, exit status) of one ``python -m nlipscalib ARGS`` process run from ``checkout`` as a
+    user's runs: bytecode written (the VM's PYTHONDONTWRITEBYTECODE dropped) under a pycache prefix and a disk cache
+    of its own (``/tmp/bench-TAG-pyc``, ``/tmp/bench-TAG-cache``), from the temp folder, its output discarded."""
+    import os
+    import resource
+    import subprocess
+    import tempfile
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(
+        PYTHONPATH=str(checkout), PYTHONPYCACHEPREFIX=f"/tmp/bench-{tag}-pyc", NLIPS_CACHE_DIR=f"/tmp/bench-{tag}-cache"
+    )
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    rc = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", *args],
+        cwd=tempfile.gettempdir(),
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    ).returncode
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, rc
+
+
+def interleaved(sides: list[str], run, pairs: int, what: str) -> dict[str, list[tuple[float, float]]]:
+    """Each side's (wall, user+sys) of ``run(side)`` (which returns wall, user+sys, exit status): one warm-up round
+    (bytecode caches, the page cache, the disk cache), then ``pairs`` rounds taking the sides in turn, so a load that
+    drifts falls on every side alike. SystemExit naming the side and ``what`` when a run fails."""
+    times = {side: [] for side in sides}
+    for side in sides:
+        run(side)
+    for _ in range(pairs):
+        for side in sides:
+            wall, cpu, rc = run(side)
+            if rc != 0:
+                raise SystemExit(f"{side}: {what}: exit {rc}")
+            times[side].append((wall, cpu))
+    return times
+
+
+def timing_rows(times: dict[str, list[tuple[float, float]]], digits: int = 3) -> str:
+    """Markdown rows ``| side | wall median [min-max] | user+sys median [min-max] |`` of :func:`interleaved`'s times."""
+
+    def spread(values: list[float]) -> str:
+        return f"{statistics.median(values):.{digits}f} [{min(values):.{digits}f}-{max(values):.{digits}f}]"
+
+    return "\n".join(
+        f"| {side} | {spread([w for w, _ in runs])} | {spread([c for _, c in runs])} |" for side, runs in times.items()
+    )
