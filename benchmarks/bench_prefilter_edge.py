@@ -94,7 +94,7 @@ def main() -> None:
         n = len(frames)
         both = {k: [(t[0] / n, t[1] / n) for t in v] for k, v in both.items()}
         rows += [_row(f"Predictor.predict per frame ({n} frames, 1 thread)", k, v) for k, v in both.items()]
-    with open("/proc/loadavg") as f:
+    with open("/proc/loadavg", encoding="ascii") as f:
         load = f.read().split()[:3]
     print("\n".join(rows))
     print(f"\nload average {' '.join(load)}")

@@ -220,11 +220,12 @@ class _GelFilter:
         self.colour = float(colour_sigma)
         r = self.radius
         # OpenCV's bilateral window: the offsets within the radius (a disc), each with its spatial Gaussian weight
+        # (none without a radius: a model trained unfiltered, smoothing_px 0, has no window and no sigma to divide by)
         self.offsets = [
             (dy, dx, float(np.exp(-(dy * dy + dx * dx) / (2 * sigma_px**2))))
             for dy in range(-r, r + 1)
             for dx in range(-r, r + 1)
-            if dy * dy + dx * dx <= r * r
+            if r and dy * dy + dx * dx <= r * r
         ]
         if self.radius and not self.colour:
             cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")

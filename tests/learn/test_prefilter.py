@@ -138,8 +138,8 @@ def test_a_colour_sigma_goes_from_the_sampling_options_to_the_samples_the_model_
         folders, solved / "reference", tmp_path / "edge", SamplingConfig(smoothing_colour=0.08), progress=False
     )
     # without it the record is as before the option (the keys of older datasets and experiment tasks stay theirs)
-    assert "smoothing_colour" not in json.loads((plain / "index.json").read_text())["sampling"]
-    assert json.loads((edge / "index.json").read_text())["sampling"]["smoothing_colour"] == 0.08
+    assert "smoothing_colour" not in json.loads((plain / "index.json").read_text(encoding="utf-8"))["sampling"]
+    assert json.loads((edge / "index.json").read_text(encoding="utf-8"))["sampling"]["smoothing_colour"] == 0.08
     data = CalibrationDataset(edge)
     assert data.smoothing_colour == 0.08 and CalibrationDataset(plain).smoothing_colour == 0.0
     s, press = data.load(NAMES[1]), load_press(solved / NAMES[1])
