@@ -20,27 +20,14 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
-import statistics
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from common import interleaved as interleaved_runs  # noqa: E402
-from common import nlips_process, timing_rows  # noqa: E402
-
-
-def _ms(fn, repeats: int) -> str:
-    """Median [min-max] of ``fn()`` in ms over ``repeats`` runs after one warm-up."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return f"{statistics.median(times):.3f} [{min(times):.3f}-{max(times):.3f}]"
+from common import ms_spread, nlips_process, timing_rows  # noqa: E402
 
 
 def in_process(presses: list[Path], dataset: Path | None, repeats: int) -> None:
@@ -48,13 +35,14 @@ def in_process(presses: list[Path], dataset: Path | None, repeats: int) -> None:
 
     print("| what | ms (median [range]) |\n|---|---|")
     if presses:
-        print(f"| check_unchanged, {len(presses)} press folder(s) | {_ms(lambda: check_unchanged(presses), repeats)} |")
+        spread = ms_spread(lambda: check_unchanged(presses), repeats, 3)
+        print(f"| check_unchanged, {len(presses)} press folder(s) | {spread} |")
     if dataset is not None:
         from nlipscalib.learn.dataset import CalibrationDataset
 
         data = CalibrationDataset(dataset)
         label = f"changed_presses, {len(data.entries)} presses + reference"
-        print(f"| {label} | {_ms(data.changed_presses, repeats)} |")
+        print(f"| {label} | {ms_spread(data.changed_presses, repeats, 3)} |")
 
 
 def interleaved(commands: list[str], against: Path, pairs: int) -> None:

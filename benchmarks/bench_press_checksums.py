@@ -25,17 +25,15 @@ import argparse
 import hashlib
 import json
 import os
-import statistics
 import sys
 import tempfile
-import time
 import zlib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from common import interleaved, nlips_process, timing_rows  # noqa: E402
+from common import interleaved, ms_spread, nlips_process, timing_rows  # noqa: E402
 
 from nlipscalib.core.file_checks import unusable_files  # noqa: E402
 from nlipscalib.core.press_checksums import CHECKSUMS_FILE, press_file_problems, write_checksums  # noqa: E402
@@ -47,17 +45,6 @@ HASHES = {
     "sha256": lambda data: hashlib.sha256(data).digest(),
     "blake2b-128": lambda data: hashlib.blake2b(data, digest_size=16).digest(),
 }
-
-
-def _ms(fn, repeats: int) -> str:
-    """Median [min-max] of ``fn()`` in ms over ``repeats`` runs after one warm-up."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    return f"{statistics.median(times):.2f} [{min(times):.2f}-{max(times):.2f}]"
 
 
 def in_process(folders: list[Path], repeats: int, scratch: Path) -> None:
@@ -81,7 +68,7 @@ def _one_folder(folder: Path, repeats: int, copy: Path) -> None:
     rows["rerun now: ends + sizes"] = lambda: press_file_problems(copy, names)
     rows["--verify: ends + sizes + CRC-32"] = lambda: press_file_problems(copy, names, verify=True)
     for label, fn in rows.items():
-        print(f"| {folder.name} | {size:.1f} | {label} | {_ms(fn, repeats)} |")
+        print(f"| {folder.name} | {size:.1f} | {label} | {ms_spread(fn, repeats, 2)} |")
 
 
 def _write_anew(folder: Path, names: list[str]) -> None:

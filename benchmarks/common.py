@@ -64,6 +64,13 @@ def write_section(name: str, body: str) -> None:
     tmp.replace(RESULTS)
 
 
+def ms_spread(fn, repeats: int, digits: int = 3) -> str:
+    """``median [min-max]`` of ``fn()``'s time in ms over ``repeats`` runs after one warm-up (:func:`median_time`)."""
+    _, times = median_time(fn, repeats)
+    ms = [t * 1e3 for t in times]
+    return f"{statistics.median(ms):.{digits}f} [{min(ms):.{digits}f}-{max(ms):.{digits}f}]"
+
+
 def nlips_process(checkout: Path, args: list[str], tag: str) -> tuple[float, float, int]:
     """(wall s, user+sys s, exit status) of one ``python -m nlipscalib ARGS`` process run from ``checkout`` as a
     user's runs: bytecode written (the VM's PYTHONDONTWRITEBYTECODE dropped) under a pycache prefix and a disk cache
