@@ -21,15 +21,16 @@ def test_a_constant_gel_stays_constant_up_to_its_edge_whatever_lies_outside():
     np.testing.assert_allclose(out[valid], 0.4, rtol=1e-5)
 
 
-@pytest.mark.parametrize(
-    "rows, cols",
-    [
-        (slice(0, 60), slice(0, 80)),
-        (slice(20, 31), slice(30, 47)),
-        (slice(0, 5), slice(70, 80)),
-        (slice(57, 60), slice(0, 3)),
-    ],
-)
+WINDOWS = [
+    (slice(0, 60), slice(0, 80)),
+    (slice(20, 31), slice(30, 47)),
+    (slice(0, 5), slice(70, 80)),
+    (slice(57, 60), slice(0, 3)),
+]
+"""Windows of the 60x80 test frame: the whole, inside, and touching its edges and corners."""
+
+
+@pytest.mark.parametrize("rows, cols", WINDOWS)
 def test_a_window_equals_the_same_pixels_of_the_whole_filtered_frame(rows, cols):
     valid = _disc()
     image = np.random.default_rng(0).random(valid.shape + (3,)).astype(np.float32)
@@ -89,15 +90,7 @@ def test_the_colour_sigma_leaves_the_gels_outside_out():
     np.testing.assert_allclose(Prefilter(valid, 1.5, 0.08)(image)[valid], 0.4, rtol=1e-5)
 
 
-@pytest.mark.parametrize(
-    "rows, cols",
-    [
-        (slice(0, 60), slice(0, 80)),
-        (slice(20, 31), slice(30, 47)),
-        (slice(0, 5), slice(70, 80)),
-        (slice(57, 60), slice(0, 3)),
-    ],
-)
+@pytest.mark.parametrize("rows, cols", WINDOWS)
 def test_with_a_colour_sigma_a_window_equals_the_whole_frame_bit_for_bit(rows, cols):
     # OpenCV's float bilateral filter is given a window of another value range than the frame's: its weights must
     # not depend on it (inference filters the changed pixels' window, the dataset the whole frame)
