@@ -27,8 +27,8 @@ def _undocumented(keys, section: str) -> list[str]:
 
 
 def test_every_index_json_key_is_documented(tmp_path):
-    # smoothing_colour is written only when > 0 (records of the Gaussian alone as before): given, so it is checked too
-    write_index(tmp_path, {"camera": {}}, SamplingConfig(smoothing_colour=0.08), [], str(tmp_path))
+    # smoothing_colour is written whenever it is not 0 (its default, 0.08, included), so it is checked too
+    write_index(tmp_path, {"camera": {}}, SamplingConfig(), [], str(tmp_path))
     index = json.loads((tmp_path / "index.json").read_text(encoding="utf-8"))
     section = _section("# Calibration dataset", "# NLiPsNet model file")
     assert _undocumented(index, section) == []

@@ -93,10 +93,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--smoothing-colour",
         type=float,
-        default=0.0,
         help="colour sigma (linear units, L1 over r, g, b) that makes that low-pass stop at colour edges, so that a "
-        "steep wall's colour does not bleed into the flat gel beside it (bilateral filter; 0.08 lifted Q2's unseen "
-        "coin; default %(default)s: the Gaussian alone)",
+        "steep wall's colour does not bleed into the flat gel beside it (bilateral filter; lifted Q2's unseen "
+        "indenters; default: SamplingConfig's, 0.08; 0: the Gaussian alone, as before the thirty-fifth session)",
     )
     add_allow_edited(p, "solve and sample")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -126,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
             min_leds=args.min_leds,
             rest_per_cell=args.rest_per_cell,
             smoothing_px=smoothing,
-            smoothing_colour=args.smoothing_colour,
+            **({} if args.smoothing_colour is None else {"smoothing_colour": args.smoothing_colour}),
         )
         root = Path(args.presses)
         if args.reference is not None:

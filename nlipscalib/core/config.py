@@ -141,12 +141,20 @@ field is left out of :func:`to_mapping` while it holds its default. Why: a field
 renders and experiments record and hash (a scene's, a design's) would otherwise change every record and hash made
 before it existed, and re-render what is already rendered; at its default it says nothing they did not."""
 
+OMIT_AT = "omit_at"
+"""Key of a config field's ``metadata`` (``metadata={OMIT_AT: value}``): the field is left out of :func:`to_mapping`
+while it holds ``value``, the one records made before the field existed meant. Why: like :data:`OMIT_AT_DEFAULT`, for
+a field whose default has since changed (``SamplingConfig.smoothing_colour``: 0, then 0.08); keyed on the old value,
+the old records keep their hashes and the new default is written out, so it never shares a key with them."""
+
 
 def to_mapping(obj: Any) -> dict:
     """Plain JSON/TOML-able dict of a (nested) config dataclass (fields marked :data:`OMIT_AT_DEFAULT` left out at
-    their default)."""
+    their default, fields marked :data:`OMIT_AT` at their value)."""
 
     def kept(v: Any, f: dataclasses.Field) -> bool:
+        if OMIT_AT in f.metadata:
+            return getattr(v, f.name) != f.metadata[OMIT_AT]
         return not (f.metadata.get(OMIT_AT_DEFAULT) and getattr(v, f.name) == f.default)
 
     def plain(v: Any) -> Any:

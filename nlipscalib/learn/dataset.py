@@ -47,7 +47,7 @@ from .. import __version__
 from ..core import said_once
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
-from ..core.config import OMIT_AT_DEFAULT, to_mapping
+from ..core.config import OMIT_AT, to_mapping
 from ..core.errors import CaptureError, ConfigError
 from ..core.file_checks import file_problem
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
@@ -118,12 +118,13 @@ class SamplingConfig:
     """Sigma (pixels) of the Gaussian low-pass applied to the tri-colour image before its colours become
     samples (:mod:`.prefilter`: cuts per-pixel sensor noise ~3.5x); the model file carries it and
     inference filters alike. 0: raw pixels."""
-    smoothing_colour: float = dataclasses.field(default=0.0, metadata={OMIT_AT_DEFAULT: True})
+    smoothing_colour: float = dataclasses.field(default=0.08, metadata={OMIT_AT: 0.0})
     """Colour sigma of that low-pass (linear units, the L1 distance of two pixels' r, g, b): > 0 makes it stop at
     colour edges (:mod:`.prefilter`'s bilateral filter), so that a steep wall's colour does not bleed into the flat
-    gel beside it (a coin's engraving: Q2's unseen coin 8.56 -> 6.8 deg, docs/experiments/RESULTS.md, s34-coinflat).
-    0: the Gaussian alone, as before; then left out of the sampling record (:func:`sampling_record`). The model
-    file carries it and inference filters alike."""
+    gel beside it (full-size Q2, two training seeds: unseen 3.54 / 3.60 -> 3.25 / 3.26 deg vs truth, the coin
+    7.07 -> 6.28, seen unchanged; docs/experiments/RESULTS.md, s34-coinflat; the default since the thirty-fifth
+    session). 0: the Gaussian alone, as before; then left out of the sampling record (:func:`sampling_record`), so
+    datasets made with it keep their keys. The model file carries it and inference filters alike."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips calibrate` names its option instead
@@ -141,8 +142,9 @@ class SamplingConfig:
 
 def sampling_record(cfg: SamplingConfig) -> dict:
     """``cfg`` as JSON values, as index.json records it and the keys of builds, shards and experiment tasks hash it:
-    ``smoothing_colour`` left out while it is 0 (the Gaussian alone; ``core.config.OMIT_AT_DEFAULT``), so that every
-    dataset, shard and task made before the option keeps its record and key."""
+    ``smoothing_colour`` left out while it is 0 (the Gaussian alone; ``core.config.OMIT_AT``), so that every
+    dataset, shard and task made before the option keeps its record and key, and written out at any other value,
+    the default 0.08 included."""
     return to_mapping(cfg)
 
 

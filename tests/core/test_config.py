@@ -141,3 +141,20 @@ def test_a_scene_camera_with_the_wrong_number_of_lens_coefficients_is_one_line(t
         load_scene(scene).camera_model()
     scene.write_text('[camera]\nmodel = "brown"\ndist = [-0.1, 0.01, 0, 0, 0]\n', encoding="utf-8")
     assert load_scene(scene).camera_model().dist == (-0.1, 0.01, 0.0, 0.0, 0.0)
+
+
+def test_omit_at_leaves_a_field_out_at_its_old_value_and_writes_its_default():
+    import dataclasses
+
+    from nlipscalib.core.config import OMIT_AT, OMIT_AT_DEFAULT, to_mapping
+
+    @dataclasses.dataclass(frozen=True)
+    class Options:
+        kept: int = 1
+        new: float = dataclasses.field(default=0.0, metadata={OMIT_AT_DEFAULT: True})
+        changed: float = dataclasses.field(default=0.08, metadata={OMIT_AT: 0.0})
+
+    # the default of a field whose default changed is written out (it must not share the old records' key) ...
+    assert to_mapping(Options()) == {"kept": 1, "changed": 0.08}
+    # ... and its old value, the one records made before it existed meant, is left out like an unchanged default
+    assert to_mapping(Options(changed=0.0, new=0.5)) == {"kept": 1, "new": 0.5}

@@ -21,7 +21,9 @@ def test_samples_pair_tricolor_pixels_with_reliable_nlips_normals(calib, twin_pr
     u, v = s["pixel"][:, 0], s["pixel"][:, 1]
     # colours: the tri-colour image low-pass filtered over the gel, as the dataset's options say
     assert calib.smoothing_px == SamplingConfig().smoothing_px > 0
-    colours = Prefilter(np.isfinite(press.reference.depth), calib.smoothing_px)(press.linear(press.tricolor))
+    assert calib.smoothing_colour == SamplingConfig().smoothing_colour > 0  # stopping at colour edges by default
+    valid = np.isfinite(press.reference.depth)
+    colours = Prefilter(valid, calib.smoothing_px, calib.smoothing_colour)(press.linear(press.tricolor))
     np.testing.assert_allclose(s["rgb"], colours[v, u], rtol=0, atol=1e-6)
     nl = s["source"] == SOURCE_NLIPS
     np.testing.assert_allclose(s["normal"][nl], rec.normals[v[nl], u[nl]], atol=1e-6)

@@ -79,8 +79,8 @@ def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_
     tri = press.linear(press.tricolor)
     predictor.predict(tri)
     x = np.concatenate(inputs)
-    assert predictor.model.smoothing_px > 0
-    colours = Prefilter(predictor.valid, predictor.model.smoothing_px)(tri)
+    assert predictor.model.smoothing_px > 0 and predictor.model.smoothing_colour > 0  # the defaults
+    colours = Prefilter(predictor.valid, predictor.model.smoothing_px, predictor.model.smoothing_colour)(tri)
     np.testing.assert_allclose(x[:, 2:], colours[x[:, 1].astype(int), x[:, 0].astype(int)], atol=1e-6)
     same = predictor.valid & ~frame.changed
     np.testing.assert_array_equal(frame.normals[same], predictor.ref_normals[same])

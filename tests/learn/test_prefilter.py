@@ -126,11 +126,11 @@ def test_a_colour_sigma_goes_from_the_sampling_options_to_the_samples_the_model_
     from nlipscalib.learn.train import train
 
     folders = [solved / n for n in NAMES]
-    plain = build_dataset(folders, solved / "reference", tmp_path / "plain", progress=False)
-    edge = build_dataset(
-        folders, solved / "reference", tmp_path / "edge", SamplingConfig(smoothing_colour=0.08), progress=False
-    )
-    # without it the record is as before the option (the keys of older datasets and experiment tasks stay theirs)
+    gaussian = SamplingConfig(smoothing_colour=0.0)
+    plain = build_dataset(folders, solved / "reference", tmp_path / "plain", gaussian, progress=False)
+    edge = build_dataset(folders, solved / "reference", tmp_path / "edge", progress=False)  # the default, 0.08
+    # without it the record is as before the option (the keys of older datasets and experiment tasks stay theirs);
+    # the default is written out, so it never shares a key with the records made while the default was 0
     assert "smoothing_colour" not in json.loads((plain / "index.json").read_text(encoding="utf-8"))["sampling"]
     assert json.loads((edge / "index.json").read_text(encoding="utf-8"))["sampling"]["smoothing_colour"] == 0.08
     data = CalibrationDataset(edge)
