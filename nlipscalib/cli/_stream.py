@@ -223,9 +223,11 @@ def warn_earlier_frames(out: Path) -> None:
 
     Why: a run replaces the frames it writes and leaves the others; after a shorter run (or one of another model,
     or after an upgrade) the folder mixed the two runs' maps without a word, its frame files alike."""
+    from ..device.live import SAVED_FRAMES
+
     if not out.is_dir():
         return
-    earlier = sorted(out.glob(f"frame_{'[0-9]' * 6}.npz"))
+    earlier = sorted(out.glob(SAVED_FRAMES))
     if earlier:
         log.warning(
             "%s: holds %d frame(s) an earlier run saved (%s, ...): this run replaces those it writes and leaves the "
