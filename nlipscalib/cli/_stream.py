@@ -197,8 +197,12 @@ def held_stream_folder(out: str | None, command: str):
     Raises ConfigError, one line naming the folder and the other process, when another live run holds it. Why: two
     streams into one folder each replaced the other's ``frame_NNNNNN`` files, both exiting 0 and each saying
     "saved: N of N frames": a folder of two streams' frames, none whole. A stream's frames are numbered from 0 at
-    every run, so no two streams share a folder (each holds it under a key of its own)."""
+    every run, so no two streams share a folder (each holds it under a key of its own). OSError naming the folder
+    when it cannot be written (a read-only disk: :func:`nlipscalib.core.atomic.check_can_make`), before the model
+    loads."""
     import secrets
+
+    from ..core.atomic import check_can_make
 
     if not out:
         yield
@@ -209,6 +213,7 @@ def held_stream_folder(out: str | None, command: str):
     )
     with contextlib.ExitStack() as stack:  # a key of this run's alone: any other live run is refused
         hold_output(stack, out, secrets.token_hex(8), refusal, {STREAM_COMMAND: command})
+        check_can_make(out)  # a read-only disk: one line now, not once a frame was inferred
         yield
 
 
@@ -218,9 +223,11 @@ def warn_earlier_frames(out: Path) -> None:
 
     Why: a run replaces the frames it writes and leaves the others; after a shorter run (or one of another model,
     or after an upgrade) the folder mixed the two runs' maps without a word, its frame files alike."""
+    from ..device.live import SAVED_FRAMES
+
     if not out.is_dir():
         return
-    earlier = sorted(out.glob(f"frame_{'[0-9]' * 6}.npz"))
+    earlier = sorted(out.glob(SAVED_FRAMES))
     if earlier:
         log.warning(
             "%s: holds %d frame(s) an earlier run saved (%s, ...): this run replaces those it writes and leaves the "

@@ -6,7 +6,8 @@ DIR`) is scored with `nlips eval PRESS --result DIR`, which refuses a result mad
 (`--other-capture` scores it anyway). Several presses are scored together: one row each, then their mean (each
 press counts once) and the pooled figures (over all their scored pixels). Results of image frames (`nlips infer
 MODEL FRAMES --out DIR`) carry no ground truth: each is scored against the press its frame shows, one at a time
-(`nlips eval PRESS --result DIR/FRAME`); infer the press folders instead to score them together. Both methods
+(`nlips eval PRESS --result DIR/FRAME`); infer the press folders instead to score them together. A stream's saved
+frames (`nlips live --out DIR`: DIR/frame_NNNNNN.npz) record no input and are not scored. Both methods
 write the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
@@ -163,17 +164,24 @@ def _results_hint(path: Path) -> str:
 
     if not path.is_dir():
         return ""
-    found = next((d / m for d in sorted(path.iterdir()) for m in METHODS if has_reconstruction(d / m)), None)
-    if found is None:
+    found = [d / m for d in sorted(path.iterdir()) for m in METHODS if has_reconstruction(d / m)]
+    if not found:
         # `nlips infer MODEL FRAMES --out DIR` writes DIR/FRAME: a frame carries no ground truth, its press does
         # (the bare "no press folders found" left the user guessing, after `nlips infer` said eval scores them)
         frame = next((d for d in sorted(path.iterdir()) if has_reconstruction(d)), None)
         if frame is None:
-            return ""
+            saved = _stream_frames(path)
+            return f" ({path} {_stream_frames_said(path, saved)}){_INFER_PRESSES}" if saved else ""
         return (
             f" ({path} holds results of image frames, e.g. {frame.name}, which carry no ground truth): score one "
             f"against the press its frame shows with `nlips eval PRESS --result {shell_word(frame)}`"
         )
+    if len(found) == 1:  # `nlips infer MODEL PRESS --out DIR`: DIR/PRESS/nlipsnet, scored against PRESS alone
+        return (
+            f" ({path} holds the result {found[0].relative_to(path)}): score it against its press with "
+            f"`nlips eval PRESS --result {shell_word(found[0])}`"
+        )
+    found = found[0]
     return (
         f" ({path} holds results, e.g. {found.relative_to(path)}): score them against their presses with "
         f"`nlips eval PRESSES --result {shell_word(path)}`"
@@ -208,6 +216,12 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
             f"(`nlips infer MODEL {shell_word(path)} --out DIR`, then `nlips eval {shell_word(path)} --result DIR`), "
             f"or score one frame against the press it shows with `nlips eval PRESS --result {shell_word(frames[0])}`"
         )
+    if not pairs and (saved := _stream_frames(result)):
+        raise CaptureError(
+            f"--result {result}: {_stream_frames_said(result, saved)}, not results of the presses of "
+            f"{path}: infer the presses themselves (`nlips infer MODEL {shell_word(path)} --out DIR`, then "
+            f"`nlips eval {shell_word(path)} --result DIR`)"
+        )
     if not pairs:
         raise CaptureError(
             f"--result {result}: holds no result of the presses of {path} (looked for {result}/PRESS/"
@@ -231,6 +245,17 @@ def _result_target(press: Path, result: Path, method: str | None, other_capture:
             f"--result {result}: holds results of image frames (`nlips infer MODEL FRAMES`; e.g. {frames[0].name}), "
             f"not one result: score the one of {press}'s frame with `nlips eval {shell_word(press)} --result "
             f"{shell_word(mine) if mine else shell_word(result) + '/FRAME'}`"
+        )
+    if not has_reconstruction(result) and (inside := _press_result_in(result, press, method)):
+        raise CaptureError(
+            f"--result {result}: holds {press.name}'s result below it ({inside.relative_to(result)}: where `nlips "
+            f"infer MODEL PRESS --out DIR` writes it), not one result: score it with `nlips eval {shell_word(press)} "
+            f"--result {shell_word(inside)}`"
+        )
+    if not has_reconstruction(result) and (saved := _stream_frames(result)):
+        raise CaptureError(
+            f"--result {result}: {_stream_frames_said(result, saved)}: infer the press itself (`nlips "
+            f"infer MODEL {shell_word(press)}`, then `nlips eval {shell_word(press)} --method nlipsnet`)"
         )
     if not has_reconstruction(result):
         raise CaptureError(f"--result {result}: no reconstruction there (result.npz)")
@@ -258,6 +283,52 @@ def _frame_results(folder: Path) -> list[Path]:
     if not folder.is_dir():
         return []
     return [d for d in sorted(folder.iterdir()) if has_reconstruction(d) and _frame_of(d) is not None]
+
+
+def _stream_frames_said(path: Path, saved: list[Path]) -> str:
+    """What eval says of ``saved``, a stream's saved frames at ``path`` (:func:`_stream_frames`): the folder, or one
+    of its files."""
+    one = path.is_file()
+    what = "is a stream's saved frame (" if one else f"holds a stream's saved frames (e.g. {saved[0].name}: "
+    return (
+        f"{what}what `nlips infer MODEL VIDEO --out DIR` and `nlips live --out DIR` write, a normal and depth map a "
+        f"frame without the input it was made from), which {'carries' if one else 'carry'} no ground truth and "
+        f"{'is' if one else 'are'} not scored"
+    )
+
+
+_INFER_PRESSES = (
+    ": infer the presses the frames show (`nlips infer MODEL PRESSES`), then `nlips eval PRESSES --method nlipsnet`"
+)
+"""What eval advises, given a stream's folder as the presses to score."""
+
+
+def _stream_frames(path: Path) -> list[Path]:
+    """A stream's saved frames at ``path`` (the folder ``nlips live --out`` / ``nlips infer STREAM --out`` wrote, or
+    one of its files), in name order; [] when it holds none.
+
+    Why: eval said "no press folders found" or "no reconstruction there (result.npz)" of them, as of an empty folder:
+    a stream's frame, unlike an image file's, is no result eval can score (nothing records what it was made from)."""
+    import fnmatch
+
+    from ..device.live import SAVED_FRAMES
+
+    if path.is_file():
+        return [path] if fnmatch.fnmatch(path.name, SAVED_FRAMES) else []
+    return sorted(path.glob(SAVED_FRAMES)) if path.is_dir() else []
+
+
+def _press_result_in(folder: Path, press: Path, method: str | None) -> Path | None:
+    """``press``'s result where ``nlips infer MODEL PRESS --out folder`` writes it (folder/PRESS/nlipsnet; also
+    folder/nlipsnet, ``folder`` being OUT/PRESS), of ``method`` or either; None when there is none.
+
+    Why: `nlips eval PRESS --result OUT` said "no reconstruction there (result.npz)" of what `nlips infer` had just
+    written for that one press (a folder of presses is looked up in OUT/PRESS/METHOD, one press was not)."""
+    from ..core.reconstruction import METHODS, has_reconstruction
+
+    methods = [method] if method else list(METHODS)
+    places = [folder / press.name / m for m in methods] + [folder / m for m in methods]
+    return next((place for place in places if has_reconstruction(place)), None)
 
 
 def _frame_of(result: Path) -> str | None:

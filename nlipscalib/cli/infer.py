@@ -605,6 +605,7 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
         say(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
         say(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh), args.figures))
         return 0
+    _check_writable(args, saved, looked)  # a read-only --out: one line now, not once the model loaded
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         # said once the model loaded: before, a missing or damaged model's one error line came after it
@@ -1091,6 +1092,31 @@ def still_provenance(settings: dict, inputs: dict) -> dict:
         "settings": settings,
         "inputs": inputs,
     }
+
+
+def _check_writable(
+    args: argparse.Namespace, saved: Sequence[tuple[Path, bool]], looked: dict[Path, tuple[dict, bool]]
+) -> None:
+    """OSError naming the folder (one line from the CLI) when a result this run must write cannot be written: --out,
+    or without it a press's own result folder, on a read-only disk or without permission
+    (:func:`nlipscalib.core.atomic.check_can_make`: nothing is made). Results that may be kept (a folder with
+    entries not looked at yet; ``looked``: :func:`_look_before_loading`'s) are not probed: a finished run's results
+    on read-only media are still re-checked.
+
+    Why: the model loaded and the first input was read (a stream's first frame inferred) before the first result
+    folder found the disk read-only."""
+    from ..core.atomic import check_can_make
+
+    def to_write(folder: Path) -> bool:
+        return not looked[folder][1] if folder in looked else not _has_entries(folder)
+
+    if args.out:  # every result inside it: one probe (of the folder, not of each of its frames)
+        if any(to_write(folder) for folder, _ in saved):
+            check_can_make(args.out)
+        return
+    for folder, _ in saved:
+        if to_write(folder):
+            check_can_make(folder)
 
 
 def _has_entries(folder: Path) -> bool:

@@ -130,6 +130,23 @@ def check_writable(folder: str | Path, longest_name: int = 0) -> None:
         _IN_PROGRESS.discard(probe)
 
 
+def check_can_make(folder: str | Path, longest_name: int = 0) -> None:
+    """Fail fast (OSError naming ``folder``) when ``folder`` could not receive output, making nothing: as
+    :func:`check_writable`, its probe made in ``folder`` or, where it does not exist yet, in the nearest folder above
+    it (a run refused on another input later leaves no folder made for the check). A file in its way is ENOTDIR.
+
+    Why: a run that writes its output as it goes (``nlips infer``'s results, a stream's frames) found a read-only
+    disk only at its first result, after loading its model and inferring a frame."""
+    folder = Path(folder)
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), folder)
+    if not existing.is_dir():
+        raise OSError(errno.ENOTDIR, os.strerror(errno.ENOTDIR), str(folder))
+    try:
+        check_writable(existing, longest_name)
+    except OSError as exc:  # name the folder asked for, not the probe (nor the folder above it)
+        raise OSError(exc.errno, exc.strerror, str(folder)) from None
+
+
 def check_free_space(folder: str | Path, need: int, what: str) -> int:
     """Fail fast (OSError ENOSPC naming ``folder``) when its disk has less than ``need`` bytes free, before long work.
 

@@ -864,6 +864,15 @@ exchanged_in_shading`). The twin's presses with two neighbours' images exchanged
 640x480, one bounce; 35 on a 320x240 sphere); an LED model 1-4 mm off the sensor, 200 random draws each: 3.8 at
 most, where a gain of :data:`IMAGE_EXCHANGE_GAIN` alone named 21-68 cycles of 200 (benchmarks/RESULTS.md,
 s34-solveswap)."""
+EXCHANGE_OFF_BAND_SHARE = 0.3
+"""``nlips solve``: an LED image with a dark band is judged for an exchange with a neighbour's on its samples outside
+the band and its margin when they are at least this share of its samples (:func:`nlipscalib.solver.led_checks.
+_correlations_off_bands`); below it the dark-band warning says that no exchange could be told there. Bands are found
+up to half the frame's rows (columns), leaving 0.36 or more of the samples: the synthetic sphere's led_03.png and
+led_04.png exchanged, a band of 10-50 % of either's rows or columns (start, middle, end) told at 0.36-0.80 kept, by 8.7
+or more times the others' misfit (:data:`MODEL_EXCHANGE_FACTOR`: 5); the twin's 160x120 presses (three spheres, a
+cube), 192 such bands: all told (9.9 times or more), the same bands in clean images none (the gain negative;
+benchmarks/RESULTS.md, s35-leftovers)."""
 MODEL_EXCHANGE_MIN_GAIN = 0.02
 """... and by at least this much (correlation): a floor under a model that fits the images almost exactly. The
 capsule's ring (3.4 mm apart): its least distinct neighbours exchanged gain 0.039 (18 times the others' misfit);

@@ -210,6 +210,11 @@ def stream(
     return stats
 
 
+SAVED_FRAMES = "frame_" + "[0-9]" * 6 + ".npz"
+"""Glob of the arrays :class:`SaveSink` writes, a file a frame (``frame_NNNNNN.npz``: normals, depth): what ``nlips live
+--out`` and ``nlips infer STREAM --out`` leave, without the input each was made from."""
+
+
 class SaveSink:
     """Every ``every``-th frame's arrays (npz: normals, depth), after its pictures when ``pictures`` is given.
 

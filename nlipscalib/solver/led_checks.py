@@ -208,7 +208,9 @@ def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -
             off.append((i, relative[k]))
     left_out = _leave_out([i for i, _ in off] + repeated, count)
     dark = [band for band in dark if band.index not in left_out]
-    dark_notes = [dark_line(press.folder, names, dark, DARK_DONE)] if dark else []
+    dark_notes = (
+        [dark_line(press.folder, names, dark, DARK_DONE + _unjudged(press, names, dark, pixels))] if dark else []
+    )
     notes = _said_repeated(said, left_out) + lagged_notes + dark_notes + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
@@ -219,13 +221,70 @@ def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     measured = MeasuredGains(tuple(live), relative)
-    exchanged = _model_exchanges(press, names, corr, [live[k] for k in judged], live, misplaced)
+    off_band, banded = _correlations_off_bands(press, image, model, pixels, live, dark, corr)
+    judged_here = sorted([live[k] for k in judged] + banded, key=live.index)
+    exchanged = _model_exchanges(press, names, off_band, judged_here, live, misplaced, banded)
     order = detected_order(shows, len(press.leds))
     return LedFindings(notes, left_out, misplaced, order, measured, [*dark, *lagged], exchanged)
 
 
+def _correlations_off_bands(
+    press: Press,
+    image: np.ndarray,
+    model: np.ndarray,
+    pixels: np.ndarray,
+    live: list[int],
+    dark: list[DarkBand],
+    corr: np.ndarray,
+) -> tuple[np.ndarray, list[int]]:
+    """``corr`` ((len(live), len(live)): each live image's correlation with each live LED's modelled light, over the
+    samples ``pixels`` of ``image`` and ``model``) with the rows of the images holding a dark band (``dark``)
+    measured anew on their samples outside it (:func:`_off_band`), and those images' LEDs (0-based) that keep
+    :data:`~nlipscalib.core.tolerances.EXCHANGE_OFF_BAND_SHARE` of their samples there: judged for an exchange.
+
+    Why: an image with a dark band had no verdict (its light is off the model in the band), so an exchange of its
+    LED with a neighbour's was solved without a word where the press was solved without --reference (the synthetic
+    sphere with led_03.png and led_04.png exchanged and led_03.png's top 20 of 72 rows dark; s35-leftovers)."""
+    corr, banded = corr.copy(), []
+    for band in dark:
+        keep = _off_band(press, band, pixels)
+        if keep.mean() < tolerances.EXCHANGE_OFF_BAND_SHARE:
+            continue
+        k = live.index(band.index)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a flat image: NaN, no verdict (as in corr)
+            corr[k] = np.corrcoef(image[k, keep].mean(-1), model[:, keep].mean(-1))[0, 1:]
+        banded.append(band.index)
+    return corr, banded
+
+
+def _off_band(press: Press, band: DarkBand, pixels: np.ndarray) -> np.ndarray:
+    """(len(pixels),) bool: the samples (flat pixel indices) outside ``band`` and its margin (:func:`.dark_band_mask`,
+    the samples a solve leaves out for that LED)."""
+    shape = press.camera.shape
+    return ~dark_band_mask([band], [band.index], shape)[0].reshape(-1)[pixels]
+
+
+def _unjudged(press: Press, names: list[str], dark: list[DarkBand], pixels: np.ndarray) -> str:
+    """What the dark-band warning adds of the images whose samples outside their band are too few to judge an
+    exchange on (:func:`_correlations_off_bands`): "" when there are none."""
+    few = [names[b.index] for b in dark if _off_band(press, b, pixels).mean() < tolerances.EXCHANGE_OFF_BAND_SHARE]
+    if not few:
+        return ""
+    files = few[0] if len(few) == 1 else ", ".join(few[:-1]) + f" and {few[-1]}"
+    return (
+        f"; too little of {files} lies outside {'its band' if len(few) == 1 else 'their bands'} to tell an exchange "
+        "with a neighbour's image there (solving with --reference, the undeformed dome's capture, tells it)"
+    )
+
+
 def _model_exchanges(
-    press: Press, names: list[str], corr: np.ndarray, judged: list[int], live: list[int], misplaced: list[int]
+    press: Press,
+    names: list[str],
+    corr: np.ndarray,
+    judged: list[int],
+    live: list[int],
+    misplaced: list[int],
+    banded: list[int] = (),
 ) -> list[ExchangedImages]:
     """The LED images of the LEDs ``judged`` (0-based) exchanged with each other's
     (:func:`nlipscalib.core.led_exchange.exchanged_in_shading` of ``corr``, (len(live), len(live)): each live
@@ -251,7 +310,10 @@ def _model_exchanges(
         for n, k in enumerate(cycle):
             m = cycle[(n + 1) % len(cycle)]
             own, other = judged[k] + 1, judged[m] + 1
-            said.append(f"{names[judged[k]]} {among[k, k]:.2f} with LED {own}'s, {among[k, m]:.2f} with LED {other}'s")
+            off = " (outside its dark band)" if judged[k] in banded else ""
+            said.append(
+                f"{names[judged[k]]} {among[k, k]:.2f} with LED {own}'s, {among[k, m]:.2f} with LED {other}'s{off}"
+            )
         whose = "the other's" if len(leds) == 2 else "the next one's"
         head = (
             f"{press.folder}: {_listed(names, leds)} look exchanged (each correlates with {whose} modelled "

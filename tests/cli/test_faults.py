@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import os
 import subprocess
+import types
 import uuid
 from pathlib import Path
 
@@ -93,6 +94,65 @@ def test_name_too_long_is_one_line(spec, tmp_path, capsys):
     out = tmp_path / ("x" * 300)
     assert main(["dataset", str(spec), "--out", str(out)]) == 2
     _one_line_error(capsys.readouterr().err, "File name too long")
+
+
+def _read_only_under(monkeypatch, root: Path) -> None:
+    """os.mkdir refuses every folder at or under ``root`` as a read-only mount does (EROFS)."""
+    real_mkdir = os.mkdir
+
+    def mkdir(path, *args, **kwargs):
+        if Path(path) == root or root in Path(path).parents:
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+        return real_mkdir(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "mkdir", mkdir)
+
+
+@pytest.mark.parametrize("stream", ["infer frames", "infer sequence", "live"])
+def test_infer_and_live_refuse_a_read_only_out_before_loading_the_model(tmp_path, monkeypatch, capsys, stream):
+    """`nlips infer MODEL FRAMES --out RO` loaded its model and read a frame before its first result folder found
+    the disk read-only, naming that folder (RO/f0); a stream (`nlips infer MODEL 'f%d.png' --out RO`, `nlips live
+    --camera FRAMES --out RO`) inferred and showed its first frame first. Now one line naming --out, exit 2, no
+    model loaded, nothing made."""
+    import numpy as np
+
+    from nlipscalib.cli import _stream
+    from nlipscalib.core.imageio import write_png16
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2):
+        write_png16(frames / f"f{i}.png", np.full((12, 16, 3), 20000, np.uint16))
+    model = tmp_path / "net.pt"
+    model.write_bytes(b"never read: refused before it loads")
+    monkeypatch.setattr(_stream, "nlipsnet_predictor", lambda *a, **k: pytest.fail("the model was loaded"))
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    _read_only_under(monkeypatch, ro)
+    out = ro / "results"
+    argv = {
+        "infer frames": ["infer", str(model), str(frames), "--out", str(out)],
+        "infer sequence": ["infer", str(model), str(frames / "f%d.png"), "--out", str(out)],
+        "live": ["live", "--model", str(model), "--camera", str(frames), "--out", str(out), "--no-window"],
+    }[stream]
+    assert main(["--no-progress", *argv]) == 2
+    _one_line_error(capsys.readouterr().err, f"{out}: Read-only file system (choose a writable output folder)")
+    assert not out.exists()
+
+
+def test_a_finished_infer_on_read_only_media_is_still_rechecked(tmp_path, monkeypatch, capsys):
+    """The writability probe skips results a re-run may keep: `nlips infer` of finished results on read-only media
+    says them kept, as before (its model is not loaded: the results are its)."""
+    from nlipscalib.cli import infer
+
+    out = tmp_path / "results"
+    (out / "f0").mkdir(parents=True)
+    looked = {out / "f0": ({}, True)}
+    args = types.SimpleNamespace(out=str(out))
+    _read_only_under(monkeypatch, tmp_path)
+    infer._check_writable(args, [(out / "f0", False)], looked)  # kept: not probed
+    with pytest.raises(OSError, match="Read-only"):
+        infer._check_writable(args, [(out / "f0", False), (out / "f1", False)], looked)  # f1 to write
 
 
 # ---------------------------------------------------------------------- real file systems

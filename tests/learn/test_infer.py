@@ -1020,6 +1020,60 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
     assert len(err) == 1 and f"`nlips eval {root / 'a_sphere'} --result {out / 'a_sphere'}`" in err[0], err
 
 
+def test_eval_of_one_press_results_and_of_a_streams_frames_names_the_command_for_each(tiny_model, tmp_path, capsys):
+    """The other layouts `nlips infer` writes: one press with --out (OUT/PRESS/nlipsnet), where `nlips eval PRESS
+    --result OUT` said "no reconstruction there (result.npz)" and `nlips eval OUT` advised `nlips eval PRESSES
+    --result OUT`, which then said it too; a stream's frames (`nlips infer MODEL VIDEO --out OUT`:
+    OUT/frame_NNNNNN.npz, as `nlips live --out`), of which eval said "no press folders found" / "no reconstruction
+    there" / "holds no result of the presses", as of an empty folder. Now each names the command that scores them."""
+    import shutil
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    press = tmp_path / NAMES[0]
+    shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips*"))
+    out = tmp_path / "out"
+    assert main(["infer", str(model), str(press), "--out", str(out), "--no-figures"]) == 0
+    result = out / NAMES[0] / "nlipsnet"
+    assert (result / "result.npz").is_file()
+    capsys.readouterr()
+    for given in (out, out / NAMES[0]):  # the --out folder, or the press's folder in it
+        assert main(["eval", str(press), "--result", str(given)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"--result {given}: holds {NAMES[0]}'s result below it" in err[0], err
+        assert err[0].endswith(f"score it with `nlips eval {press} --result {result}`"), err
+    assert main(["eval", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"score it against its press with `nlips eval PRESS --result {result}`" in err[0], err
+    assert main(["eval", str(press), "--result", str(result)]) == 0  # the command named scores it
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, name in enumerate(NAMES):
+        shutil.copy(root / name / "tricolor.png", frames / f"f{i}.png")
+    stream = tmp_path / "stream"
+    assert main(["infer", str(model), str(frames / "f%d.png"), "--out", str(stream)]) == 0
+    assert (stream / "frame_000000.npz").is_file()
+    capsys.readouterr()
+    said = {
+        (str(stream),): f"{stream}: no press folders found ({stream} holds a stream's saved frames (e.g. "
+        "frame_000000.npz: what `nlips infer MODEL VIDEO --out DIR` and `nlips live --out DIR` write",
+        (str(press), "--result", str(stream)): f"--result {stream}: holds a stream's saved frames (e.g. frame_000000",
+        (str(press), "--result", str(stream / "frame_000001.npz")): "frame_000001.npz: is a stream's saved frame (",
+        (str(root), "--result", str(stream)): f"not results of the presses of {root}: infer the presses themselves "
+        f"(`nlips infer MODEL {root} --out DIR`, then `nlips eval {root} --result DIR`)",
+    }
+    for argv, line in said.items():
+        assert main(["eval", *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and line in err[0], (argv, err)
+        if argv[0] == str(press):
+            assert err[0].endswith(
+                f"infer the press itself (`nlips infer MODEL {press}`, then `nlips eval {press} --method nlipsnet`)"
+            ), err
+
+
 def test_a_press_whose_tricolor_frame_was_copied_over_is_refused_unless_allowed(tiny_model, tmp_path, capsys):
     """`nlips infer` read a press's tri-colour frame without its checksums.json (s34-checksums added the size check
     to solve, calibrate and train): another press's frame copied over it was inferred and saved under the press's

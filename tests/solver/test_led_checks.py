@@ -467,6 +467,39 @@ def test_dark_top_rows_of_an_led_image_are_named_and_only_those_rows_left_out_fo
     assert not any("read the frame out" in note or "repeats" in note or "weak" in note for note in rep["warnings"])
 
 
+def test_an_exchange_of_an_image_with_a_dark_band_is_told_off_its_band(tmp_path, monkeypatch):
+    """An LED image with a dark band got no exchange verdict against the LED model (its light is off the model in the
+    band), so led_03.png and led_04.png exchanged, led_03.png's top 20 rows dark, were solved without a word where no
+    --reference was given. Now its correlations are measured outside the band and the exchange refused as without
+    one; the band in a clean image names none; where too little of the image lies outside its band the dark-band
+    warning says that no exchange could be told there."""
+    from nlipscalib.core.errors import CaptureError
+
+    def exchanged_and_dark(lin):
+        return _rows_from({2: None}, 20)(_exchanged(2, 3)(lin))
+
+    press = _press(tmp_path, "exchanged_dark", exchanged_and_dark)
+    found = led_check_measured(press, press.leds, range(12))
+    assert [band.index for band in found.bands] == [2] and [e.leds for e in found.exchanged] == [(2, 3)]
+    with pytest.raises(CaptureError) as refused:
+        solve_press(press, options=SolverOptions(max_iters=2))
+    line = str(refused.value)
+    assert line.startswith(f"{press.folder}: led_03.png and led_04.png look exchanged (") and "\n" not in line
+    assert "with LED 4's (outside its dark band)" in line and "--keep-led-order" in line
+    dark_only = _press(tmp_path, "dark", _rows_from({2: None}, 20))
+    found = led_check_measured(dark_only, dark_only.leds, range(12))
+    assert [band.index for band in found.bands] == [2] and found.exchanged == []
+    assert not any("too little" in note or "exchanged" in note for note in found.notes)
+    monkeypatch.setattr(tolerances, "EXCHANGE_OFF_BAND_SHARE", 0.9)  # more than the band leaves
+    found = led_check_measured(press, press.leds, range(12))
+    assert found.exchanged == []
+    (said,) = [note for note in found.notes if "are dark" in note]
+    assert said.endswith(
+        "; too little of led_03.png lies outside its band to tell an exchange with a neighbour's image there (solving "
+        "with --reference, the undeformed dome's capture, tells it)"
+    ), said
+
+
 def test_dark_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_led_there_and_in_the_press(tmp_path):
     """The undeformed capture a press is solved against (``indirect``, ``--reference``) with LED 9's top 20 rows read
     while it was off: nothing was said (the twin's sphere press against such a capture, LED 5's top 60 rows: contact

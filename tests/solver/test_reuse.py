@@ -404,3 +404,61 @@ def test_a_level_assembled_by_the_fixed_pattern_map_solves_as_with_products(tmp_
     change = angular_error_map(fixed.normals, products.normals)[rec]
     assert float(np.median(change)) < 0.005 and float(np.max(change)) < 0.05
     np.testing.assert_allclose(fixed.depth[rec], products.depth[rec], atol=1e-3)
+
+
+def _whole_gel_levels() -> list[np.ndarray]:
+    """The masks of the whole gel's finest two levels (as :func:`nlipscalib.solver.pyramid.build_pyramid` halves
+    them) at 160x120, of the default sensor (its gel fills the frame) and of its wide view (a footprint with black
+    corners: a ragged edge)."""
+    from nlipscalib.core.dome import reference_surface
+    from nlipscalib.sim.scene import load_scene
+    from nlipscalib.solver.pyramid import resize
+
+    masks = []
+    for name in ("nlipstac", "nlipstac_wide"):
+        scene = load_scene(name).replace(camera={"width": 160, "height": 120})
+        gel = np.isfinite(reference_surface(scene.design, scene.camera_model()).depth)
+        masks += [gel, resize(gel.astype(np.float32), (60, 80)) > 0.999]
+    return masks
+
+
+def test_the_whole_gels_cached_levels_assemble_as_the_grid_stencil_does(disk, monkeypatch):
+    """The whole gel's large levels keep their operators on disk with the fixed-pattern map; every other level
+    assembles by the grid stencil, tested on small hand-made masks only. On such levels' own masks (a whole frame, a
+    wide view's footprint), their operators read back from disk by a later process: the fixed-pattern map and the
+    grid stencil give the known H (the explicit sum of P_a^T diag(M_ab) P_b and the weighted second differences'
+    grams) to rounding, on one pattern (an unlit third's zeros left out alike); the stencil exactly symmetric, the map
+    to rounding (here up to 256 of 249,036 entries differ from their mirror, by 1-2 units in the last place)."""
+    import scipy.sparse as sp
+
+    from nlipscalib.solver import operators
+
+    monkeypatch.setattr(operators, "OPERATOR_PERSIST_PIXELS", 1000)  # 160x120's levels as 640x480's
+    masks = _whole_gel_levels()
+    assert not masks[2].all() and masks[0].all()  # the wide view's footprint; the default's whole frame
+    for mk in masks:  # as a whole-gel solve makes them: kept on disk
+        assert operators.level_operators({"mask": mk, "recurs": True})["normal"].fixed is not None
+    diskcache.wait()
+    reuse.clear()  # a new process: only the disk remembers
+    monkeypatch.setattr(operators, "_make_operators", lambda *a, **k: pytest.fail("made again, not read from disk"))
+    rng = np.random.default_rng(7)
+    for mk in masks:
+        ops = operators.level_operators({"mask": mk, "recurs": True})
+        grid = operators._normal_matrix(ops, mk)  # the stencil every other level assembles with
+        assert ops["normal"].fixed is not None and grid.stencil is not None
+        n = int(mk.sum())
+        P, E = (sp.identity(n, format="csr"), ops["Du"], ops["Dv"]), ops["second"]
+        M = rng.normal(size=(3, 3, n))
+        M = np.einsum("abn,cbn->acn", M, M)
+        weights = (rng.uniform(0.01, 1.0, E[0].shape[0]), 0.3)
+        for blocks in (M, np.where(np.arange(n) < n // 3, 0.0, M)):  # all lit; a third unlit
+            known = sum(P[a].T @ sp.diags(blocks[a, b]) @ P[b] for a in range(3) for b in range(3))
+            known = known + E[0].T @ sp.diags(weights[0]) @ E[0] + 0.3 * (E[1].T @ E[1])
+            fixed, stencil = ops["normal"].assemble(blocks, weights), grid.assemble(blocks, weights)
+            np.testing.assert_array_equal(stencil.indptr, fixed.indptr)
+            np.testing.assert_array_equal(stencil.indices, fixed.indices)
+            scale = abs(known).max()
+            for H in (fixed, stencil):
+                assert abs(H - known).max() < 1e-12 * scale and H.has_sorted_indices
+                assert abs(H - H.T).max() <= 4 * np.finfo(float).eps * scale
+            assert abs(stencil - stencil.T).max() == 0  # the map sums an entry and its mirror in other orders
