@@ -11,6 +11,8 @@ import numpy as np
 
 CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
 """3x3 cross: scipy.ndimage's default binary structure."""
+SQUARE = np.ones((3, 3), np.uint8)
+"""3x3 square: the 8-neighbourhood (what a bilinear interpolation's weights reach)."""
 
 
 def _cv2():
@@ -42,20 +44,21 @@ def erode(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
     return out.view(bool)
 
 
-def dilate(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
-    """``mask`` dilated ``iterations`` times by the cross (nothing grows in from outside the image).
+def dilate(mask: np.ndarray, iterations: int = 1, structure: np.ndarray = CROSS) -> np.ndarray:
+    """``mask`` dilated ``iterations`` times by ``structure`` (nothing grows in from outside the image).
 
     Parameters
     ----------
     mask : (H, W) bool (or any dtype: nonzero is on) -- image pixels.
     iterations : dilations, >= 0 (0 returns the mask).
+    structure : (3, 3) uint8 -- :data:`CROSS` (default) or :data:`SQUARE`.
 
     Returns
     -------
     (H, W) bool.
     """
     cv2 = _cv2()
-    out = cv2.dilate(_u8(mask), CROSS, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    out = cv2.dilate(_u8(mask), structure, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return out.view(bool)
 
 

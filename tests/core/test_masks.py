@@ -22,6 +22,12 @@ def test_erosion_and_dilation_match_scipy_ndimage(mask, iterations):
     assert masks.erode(mask).dtype == bool and masks.erode(mask).shape == mask.shape
 
 
+def test_dilation_by_the_square_matches_scipy_ndimage_with_its_structure(mask):
+    square = ndimage.binary_dilation(mask, np.ones((3, 3), bool))
+    np.testing.assert_array_equal(masks.dilate(mask, 1, structure=masks.SQUARE), square)
+    assert (square & ~masks.dilate(mask)).any()  # the diagonals the cross leaves out
+
+
 def test_components_match_scipy_ndimage_labels(mask):
     labels, sizes = masks.components(mask)
     ref, count = ndimage.label(mask)

@@ -67,6 +67,36 @@ def test_upsampled_one_led_at_a_time_is_the_whole_upsampling_bit_for_bit():
     assert np.asarray(stack, np.float64).dtype == np.float64
 
 
+def test_upsampling_leaves_out_the_patches_that_hold_no_light():
+    """Patches whose light is 0 in every LED and channel (off the gel: a view past its outline) are no surface: a
+    pixel beside one takes the others' bilinear weights renormalised, so a light constant over the patches that hold
+    it stays that constant up to the outline (plain bilinear blended the zeros in: 0.6-0.9 of it at the edge). Pixels
+    whose neighbours all hold light keep plain bilinear's bits."""
+    h, w, size = 9, 11, 4
+    yy, xx = np.mgrid[0:h, 0:w]
+    holds = (yy - 4) ** 2 + (xx - 5) ** 2 <= 12  # a disk of patches, none outside
+    patches = np.where(holds[None, ..., None], np.array([1.0, 0.5, 2.0], np.float32), 0.0).astype(np.float32)
+    patches = np.repeat(patches, 2, axis=0) * np.array([1.0, 3.0], np.float32)[:, None, None, None]
+    up = radiosity.upsample(patches, (h * size - 3, w * size - 2), size)
+    on = np.kron(holds, np.ones((size, size), bool))[: h * size - 3, : w * size - 2]  # the pixels of lit patches
+    expected = np.array([1.0, 0.5, 2.0]) * np.array([1.0, 3.0])[:, None]
+    np.testing.assert_allclose(up[:, on], np.broadcast_to(expected[:, None], up[:, on].shape), rtol=1e-6)
+    plain = np.stack([radiosity._upsample_one(p, up.shape[1:3], size) for p in patches])
+    inner = np.kron(_eroded(holds), np.ones((size, size), bool))[: h * size - 3, : w * size - 2]
+    np.testing.assert_array_equal(up[:, inner], plain[:, inner])
+    assert (plain[:, on & ~inner] < 0.99 * up[:, on & ~inner]).any()  # what plain bilinear gave there
+    stack = radiosity.Upsampled(patches, up.shape[1:3], size)
+    np.testing.assert_array_equal(np.stack([stack[i] for i in range(len(stack))]), up)
+    assert radiosity.edge_gain(patches + 1.0, up.shape[1:3], size) is None  # every patch lit: plain bilinear
+
+
+def _eroded(a: np.ndarray) -> np.ndarray:
+    """``a`` (h, w) bool less the patches with a neighbour (8-neighbourhood, what bilinear weights reach) off it."""
+    from scipy import ndimage
+
+    return ndimage.binary_erosion(a, np.ones((3, 3), bool), border_value=0)
+
+
 def test_grouped_gather_on_a_domes_inside_matches_the_exact_one(monkeypatch):
     """The inside of a sphere: a point-to-patch form factor there does not depend on the distance, so the
     aggregates are all but exact (2e-5 on the 640x480 twin, 1.5e-4 on this coarser grid with nearer LEDs); with a
