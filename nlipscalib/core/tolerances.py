@@ -850,6 +850,21 @@ LED_EXCHANGE_NEARER = 3.0
 places, the farthest s31-ledfar starts from) has LEDs up to 1.3 mm nearer a neighbour's place on the default ring
 (4.66 mm apart: at best 1.66 mm from it, 1.8 times nearer), never 3 times; on a ring twice as dense (2.3 mm apart) an
 LED would have to be built 1.75 mm toward a neighbour's place to reach it."""
+LED_EXCHANGE_SCATTER = 5.0
+"""... and nearer by at least this many times the other LEDs' median distance from their own places (the common
+shift, turn and scale of all LEDs taken out: :func:`nlipscalib.core.led_exchange.exchange_margin`) where that is
+under :data:`LED_EXCHANGE_MM`: a calibration that places its LEDs closely tells an exchange of LEDs designed closer
+than 1 mm. The twin's clean calibrations (160x120, one bounce, 16 spp): 0.03-0.07 mm median, the worst LED 1.5-3.5
+times the median; LEDs in pairs 0.8 mm apart exchanged: 0.7 mm or more nearer each other's places. Random fits and
+builds 0.02-3 mm off, with a common shift, turn and scale, on rings of 3-36 LEDs and pairs or triples 0.5-1.2 mm apart:
+no more cycles named than by 1 mm alone (benchmarks/RESULTS.md, s35-exchange)."""
+LED_EXCHANGE_MIN_MM = 0.1
+"""... and by at least this much (mm) however closely the others sit (a noise-free fit): the smallest design spacing
+an exchange is told at is about twice it."""
+LED_ALIGN_MAX_TURN_DEG = 10.0
+"""The largest turn (degrees) of the fitted LEDs against their design that :func:`nlipscalib.core.led_exchange.
+aligned_places` takes out: a ring built turned by a degree or two moves its LEDs 0.2-0.3 mm along the ring, toward
+their neighbours; a half turn would flip a three-LED ring with two exchanged onto its design."""
 IMAGE_EXCHANGE_GAIN = 0.1
 """``nlips calibrate-leds`` of several captures: a capture whose LED images correlate at least this much better with
 another capture's images of other LEDs than with their own LED's (over the gel) holds them in another order
