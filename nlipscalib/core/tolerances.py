@@ -841,8 +841,8 @@ at worst)."""
 LED_EXCHANGE_MM = 1.0
 """``nlips calibrate-leds``: LED images captured in each other's place (the wiring, the controller's LED order or the
 images' order) are named when each LED of the exchange was fitted at least this much (mm) nearer another LED's
-design place than its own (:func:`nlipscalib.core.led_exchange.exchanged_leds`), and :data:`LED_EXCHANGE_NEARER` times
-nearer. The twin's clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from
+design place than its own, or less where the other LEDs scatter little (:data:`LED_EXCHANGE_SCATTER`;
+:func:`nlipscalib.core.led_exchange.place_exchanges`), and :data:`LED_EXCHANGE_NEARER` times nearer. The twin's clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from
 their design places (the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and
 led_04.png exchanged: 4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
 LED_EXCHANGE_NEARER = 3.0
@@ -854,10 +854,12 @@ LED_EXCHANGE_SCATTER = 5.0
 """... and nearer by at least this many times the other LEDs' median distance from their own places (the common
 shift, turn and scale of all LEDs taken out: :func:`nlipscalib.core.led_exchange.exchange_margin`) where that is
 under :data:`LED_EXCHANGE_MM`: a calibration that places its LEDs closely tells an exchange of LEDs designed closer
-than 1 mm. The twin's clean calibrations (160x120, one bounce, 16 spp): 0.03-0.07 mm median, the worst LED 1.5-3.5
-times the median; LEDs in pairs 0.8 mm apart exchanged: 0.7 mm or more nearer each other's places. Random fits and
-builds 0.02-3 mm off, with a common shift, turn and scale, on rings of 3-36 LEDs and pairs or triples 0.5-1.2 mm apart:
-no more cycles named than by 1 mm alone (benchmarks/RESULTS.md, s35-exchange)."""
+than 1 mm. The twin's clean calibrations (160x120, one bounce, 16 spp; the shipped scenes and scene copies with LEDs
+in pairs or triples 0.5-1.2 mm apart, 48 captures): 0.026-0.104 mm median (nlipstac_realistic, built off its design,
+0.62-0.73), the worst LED 1.2-4.6 times the median; two LEDs 0.8 mm apart exchanged: 0.65 mm or more nearer each
+other's places, against a margin of 0.13-0.23; 0.5 mm apart: 0.41 or more against 0.15-0.36 (the limit). Random fits
+and builds 0.02-3 mm off, with a common shift, turn and scale, on rings of 3-36 LEDs and pairs or triples 0.5-1.2 mm
+apart: no more cycles named than by 1 mm alone (benchmarks/RESULTS.md, s35-exchange)."""
 LED_EXCHANGE_MIN_MM = 0.1
 """... and by at least this much (mm) however closely the others sit (a noise-free fit): the smallest design spacing
 an exchange is told at is about twice it."""
