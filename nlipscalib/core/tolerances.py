@@ -842,9 +842,10 @@ LED_EXCHANGE_MM = 1.0
 """``nlips calibrate-leds``: LED images captured in each other's place (the wiring, the controller's LED order or the
 images' order) are named when each LED of the exchange was fitted at least this much (mm) nearer another LED's
 design place than its own, or less where the other LEDs scatter little (:data:`LED_EXCHANGE_SCATTER`;
-:func:`nlipscalib.core.led_exchange.place_exchanges`), and :data:`LED_EXCHANGE_NEARER` times nearer. The twin's clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from
-their design places (the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and
-led_04.png exchanged: 4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
+:func:`nlipscalib.core.led_exchange.place_exchanges`), and :data:`LED_EXCHANGE_NEARER` times nearer. The twin's
+clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from their design places
+(the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and led_04.png exchanged:
+4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
 LED_EXCHANGE_NEARER = 3.0
 """... and at least this many times nearer. Why a ratio too: a sensor built off its design (LEDs 3 mm from their
 places, the farthest s31-ledfar starts from) has LEDs up to 1.3 mm nearer a neighbour's place on the default ring
