@@ -17,6 +17,7 @@ them.
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -164,7 +165,10 @@ def aligned_places(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ..
     spread = float(np.sum(a * a))
     if spread == 0.0:  # every LED designed at one place: nothing to turn or scale
         return fitted - centre_f + centre_d
-    turn = Rotation.align_vectors(b, a)[0]
+    with warnings.catch_warnings():
+        # LEDs designed on a line: the turn about it is any (SciPy warns on stderr); none moves them
+        warnings.filterwarnings("ignore", "Optimal rotation is not uniquely", UserWarning)
+        turn = Rotation.align_vectors(b, a)[0]
     if turn.magnitude() > np.radians(tolerances.LED_ALIGN_MAX_TURN_DEG):
         turn = Rotation.identity()
     scale = np.sqrt(np.sum(b * b) / spread)

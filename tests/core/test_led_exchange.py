@@ -121,6 +121,19 @@ def test_a_close_design_built_or_fitted_loosely_is_no_exchange_and_an_exchange_t
     assert found.margin == 1.0 and found.cycles == [] and found.doubtful == [[0, 1]]
 
 
+def test_leds_designed_on_a_line_are_aligned_without_a_warning_and_their_exchange_named():
+    """Six LEDs on a line (a bar beside a flat gel): the turn about the line is not defined, and SciPy's
+    align_vectors warned of it on stderr in the middle of the command's output. Now no warning; the exchange named."""
+    import warnings
+
+    design = np.stack([np.linspace(-5.0, 5.0, 6), np.zeros(6), np.full(6, 3.0)], axis=1)
+    fitted = _scattered(design, 0.02, np.random.default_rng(7))
+    fitted[[1, 2]] = fitted[[2, 1]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert exchanged_leds(design, fitted) == [[1, 2]]
+
+
 def test_three_leds_with_two_exchanged_are_not_turned_back_onto_their_design():
     """Three LEDs on a ring with two exchanged are the design turned half round (flipped over): the alignment that
     takes out the LEDs' common turn must not take that, or the exchange would vanish."""
