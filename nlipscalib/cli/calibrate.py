@@ -95,7 +95,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="fit LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
         "captured; by default they are fitted in the order they show, with a warning and the file's led_order. "
         "Neighbours' images exchanged (each LED fitted at the other's design place, which the images alone do not "
-        "tell) are refused by default, naming both images; with this flag calibrated as captured, with a warning",
+        "tell) are refused by default, naming both images (warned of, not refused, where the other LEDs scatter too "
+        "far about their design places to be sure: LEDs designed closer than ~5 times that); with this flag "
+        "calibrated as captured, with a warning",
     )
     p.add_argument(
         "--previous",

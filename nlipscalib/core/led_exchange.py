@@ -17,6 +17,9 @@ them.
 
 from __future__ import annotations
 
+import warnings
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -26,20 +29,29 @@ FAR_MM = 1e9
 """The distance an LED not fitted is given to every place but its own (mm): it never takes another's."""
 
 
+class PlaceExchanges(NamedTuple):
+    """What :func:`place_exchanges` found: the exchanges, and the distances they were told by."""
+
+    cycles: list[list[int]]
+    """Each exchange's LEDs (0-based), from its lowest, in the assignment's order (``[2, 3]``: LED 3 sits at LED 4's
+    place and LED 4 at LED 3's); empty when none."""
+    aligned: np.ndarray
+    """(L, 3) float, mm, the design's frame: the fitted places with the LEDs' common shift, turn and scale taken out
+    (:func:`aligned_places`)."""
+    scatter: float
+    """mm: the median distance of the LEDs assigned their own place (not held) from it, aligned: the calibration's
+    own scatter about the design (inf: no such LED)."""
+    margin: float
+    """mm: how much nearer another place than its own an LED of an exchange had to be (:func:`exchange_margin`)."""
+    doubtful: list[list[int]]
+    """The cycles whose LEDs each sit :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_NEARER` times nearer the place
+    they are assigned than their own, but not by ``margin``: an exchange the calibration's scatter leaves in doubt
+    (LEDs designed closer than ~5 times it); as ``cycles``."""
+
+
 def exchanged_leds(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ...] | list[int] = ()) -> list[list[int]]:
-    """The cycles of LEDs whose fitted places are each the design place of the next (two exchanged images: a pair).
-
-    The fitted LEDs are assigned one-to-one to the design's places at the least summed distance; each cycle of that
-    assignment (an LED assigned to another's place, which is assigned on, back to the first) is an exchange when every
-    LED of it sits at least :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_MM` nearer the place it is assigned than
-    its own, and :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_NEARER` times nearer.
-
-    Why both, and per LED: a sensor built off its design (an LED 3 mm from its place, the farthest the project's
-    starts are tried from, s31-ledfar) may sit nearer a neighbour's place than its own, but not 3 times nearer on the
-    default ring (neighbours 4.66 mm apart: at best 1.66 mm from it); an LED whose fit ran off onto a neighbour's place
-    makes a cycle with that neighbour, which did not move (0.2-0.5 mm from its own place: not nearer another's). A
-    clean calibration's point LEDs lie 0.19-0.51 mm from the design (twin, 160x120, seven seeds): 1 mm nearer another
-    place takes an exchange whatever the design's spacing.
+    """The cycles of LEDs whose fitted places are each the design place of the next (two exchanged images: a pair):
+    :func:`place_exchanges`' ``cycles``.
 
     Parameters
     ----------
@@ -49,22 +61,118 @@ def exchanged_leds(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ..
 
     Returns
     -------
-    list of list of int -- each exchange's LEDs (0-based), from its lowest, in the assignment's order (``[2, 3]``:
-    LED 3 sits at LED 4's place and LED 4 at LED 3's); empty when none.
+    list of list of int -- each exchange's LEDs (0-based), from its lowest, in the assignment's order; empty when none.
+    """
+    return place_exchanges(design, fitted, left_out).cycles
+
+
+def place_exchanges(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ...] | list[int] = ()) -> PlaceExchanges:
+    """The cycles of LEDs whose fitted places are each the design place of the next, and the distances that tell them.
+
+    The fitted LEDs, their common shift, turn and scale taken out (:func:`aligned_places`), are assigned one-to-one to
+    the design's places at the least summed distance; each cycle of that assignment (an LED assigned to another's
+    place, which is assigned on, back to the first) is an exchange when every LED of it sits
+    :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_NEARER` times nearer the place it is assigned than its own, and
+    nearer by :func:`exchange_margin` at least: 1 mm, or less where the other LEDs scatter little about their places.
+
+    Why the ratio: a sensor built off its design (an LED 3 mm from its place, the farthest the project's starts are
+    tried from, s31-ledfar) may sit nearer a neighbour's place than its own, but not 3 times nearer on the default ring
+    (neighbours 4.66 mm apart: at best 1.66 mm from it); an LED whose fit ran off onto a neighbour's place makes a
+    cycle with that neighbour, which did not move (not nearer another's). Why the margin follows the scatter: a fixed
+    1 mm (s33-ledswap) missed every exchange of LEDs designed closer than ~1.1 mm however exactly they were fitted
+    (the twin's LEDs in pairs 0.8 mm apart: exchanged, fitted 0.02-0.08 mm from each other's places, the others
+    0.03-0.05 mm from theirs; benchmarks/RESULTS.md, s35-exchange). Why the common part out: an LED's best point sits
+    behind its emitting disk (0.23 mm for the twin's 3.6 mm disks), alike for every LED, which inflated each distance
+    (the default ring's clean points 0.19-0.23 mm from their places, median; 0.04-0.07 mm with it out) and, added to
+    an exchanged LED's distance from the place it holds, could cost it the ratio on a close design; a common offset
+    alone never makes a cycle of LEDs each nearer the other's place.
+
+    Parameters
+    ----------
+    design : (L, 3) float, mm, camera frame -- the LEDs' places as designed (the calibration's start).
+    fitted : (L, 3) float, mm, camera frame -- the calibrated LEDs' places, in the same order.
+    left_out : LEDs (0-based) not fitted (kept at their start): never part of an exchange, nor of the alignment.
+
+    A cycle whose LEDs are each 3 times nearer, but not by the margin, is returned as ``doubtful``: on random fits and
+    builds 0.05-0.5 mm off, close designs included, no such cycle came up (300 draws each; 3 of 300 at 1 mm off on
+    pairs 0.8 mm apart, a build that would have put LEDs through each other), while an exchange of LEDs designed
+    closer than the margin allows often is one.
+
+    Returns
+    -------
+    PlaceExchanges -- the cycles (empty when none), the aligned places, the scatter, the margin and the doubtful
+    cycles.
     """
     from scipy.optimize import linear_sum_assignment
 
-    design, fitted = np.asarray(design, np.float64), np.asarray(fitted, np.float64)
-    cost = np.linalg.norm(fitted[:, None, :] - design[None, :, :], axis=2)  # (fitted, design)
+    design = np.asarray(design, np.float64)
     held = sorted(int(i) for i in left_out)
+    aligned = aligned_places(design, fitted, held)
+    cost = np.linalg.norm(aligned[:, None, :] - design[None, :, :], axis=2)  # (fitted, design)
     cost[held, :] = FAR_MM  # a held LED keeps its own place only
     cost[held, held] = 0.0
     rows, place = linear_sum_assignment(cost)
     assigned = place[np.argsort(rows)]
     own = np.diag(cost)
     there = cost[np.arange(len(own)), assigned]
-    exchange = (own - there >= tolerances.LED_EXCHANGE_MM) & (own >= tolerances.LED_EXCHANGE_NEARER * there)
-    return _cycles(assigned, exchange)
+    still = assigned == np.arange(len(own))
+    still[held] = False
+    scatter = float(np.median(own[still])) if still.any() else float("inf")
+    margin = exchange_margin(scatter)
+    nearer = own >= tolerances.LED_EXCHANGE_NEARER * there
+    cycles = _cycles(assigned, nearer & (own - there >= margin))
+    doubtful = [cycle for cycle in _cycles(assigned, nearer) if cycle not in cycles]
+    return PlaceExchanges(cycles, aligned, scatter, margin, doubtful)
+
+
+def exchange_margin(scatter: float) -> float:
+    """How much nearer (mm) another LED's design place than its own a fitted LED must sit to be part of an exchange:
+    :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_SCATTER` times ``scatter`` (mm, the other LEDs' median distance
+    from their places, :func:`place_exchanges`), within [:data:`~nlipscalib.core.tolerances.LED_EXCHANGE_MIN_MM`,
+    :data:`~nlipscalib.core.tolerances.LED_EXCHANGE_MM`]."""
+    relative = tolerances.LED_EXCHANGE_SCATTER * scatter
+    return float(min(tolerances.LED_EXCHANGE_MM, max(tolerances.LED_EXCHANGE_MIN_MM, relative)))
+
+
+def aligned_places(design: ArrayLike, fitted: ArrayLike, left_out: tuple[int, ...] | list[int] = ()) -> np.ndarray:
+    """The fitted places brought onto the design by the similarity (shift, turn, scale) that best maps the design's
+    places onto them: what the LEDs' fit shares, taken out (an LED's best point behind its emitting disk, a ring
+    built turned). The turn is :meth:`scipy.spatial.transform.Rotation.align_vectors` (Kabsch, SciPy's), the scale
+    the ratio of the two sets' spreads about their centres.
+
+    A turn above :data:`~nlipscalib.core.tolerances.LED_ALIGN_MAX_TURN_DEG` is not taken (shift and scale only): no
+    fit turns a whole ring so far, while a few LEDs' mirror image is a half turn away (three LEDs on a ring with two
+    exchanged are the design flipped over).
+
+    Parameters
+    ----------
+    design, fitted : (L, 3) float, mm, camera frame -- the LEDs' places as designed and as fitted, in the same order.
+    left_out : LEDs (0-based) not fitted: not used to find the similarity (returned moved with the others).
+
+    Returns
+    -------
+    (L, 3) float, mm -- ``fitted`` in the design's frame; ``fitted`` itself when fewer than three LEDs are fitted.
+    """
+    from scipy.spatial.transform import Rotation
+
+    design, fitted = np.asarray(design, np.float64), np.asarray(fitted, np.float64)
+    use = np.ones(len(design), bool)
+    use[list(left_out)] = False
+    if use.sum() < 3:
+        return fitted
+    centre_d, centre_f = design[use].mean(axis=0), fitted[use].mean(axis=0)
+    a, b = design[use] - centre_d, fitted[use] - centre_f
+    spread = float(np.sum(a * a))
+    if spread == 0.0:  # every LED designed at one place: nothing to turn or scale
+        return fitted - centre_f + centre_d
+    with warnings.catch_warnings():
+        # LEDs designed on a line: the turn about it is any (SciPy warns on stderr); none moves them
+        warnings.filterwarnings("ignore", "Optimal rotation is not uniquely", UserWarning)
+        turn = Rotation.align_vectors(b, a)[0]
+    if turn.magnitude() > np.radians(tolerances.LED_ALIGN_MAX_TURN_DEG):
+        turn = Rotation.identity()
+    scale = np.sqrt(np.sum(b * b) / spread)
+    return centre_d + turn.inv().apply(fitted - centre_f) / scale
 
 
 def exchanged_images(reference: np.ndarray, images: np.ndarray) -> list[list[int]]:

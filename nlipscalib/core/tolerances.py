@@ -841,15 +841,33 @@ at worst)."""
 LED_EXCHANGE_MM = 1.0
 """``nlips calibrate-leds``: LED images captured in each other's place (the wiring, the controller's LED order or the
 images' order) are named when each LED of the exchange was fitted at least this much (mm) nearer another LED's
-design place than its own (:func:`nlipscalib.core.led_exchange.exchanged_leds`), and :data:`LED_EXCHANGE_NEARER` times
-nearer. The twin's clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from
-their design places (the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and
-led_04.png exchanged: 4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
+design place than its own, or less where the other LEDs scatter little (:data:`LED_EXCHANGE_SCATTER`;
+:func:`nlipscalib.core.led_exchange.place_exchanges`), and :data:`LED_EXCHANGE_NEARER` times nearer. The twin's
+clean calibrations (160x120, one bounce, 16 spp, seven noise seeds): point LEDs 0.19-0.51 mm from their design places
+(the best point sits ~0.23 mm behind the disk), 4.55 mm or more from any other; led_03.png and led_04.png exchanged:
+4.68 mm from their own, 0.19 / 0.28 mm from each other's (benchmarks/RESULTS.md, s33-ledswap)."""
 LED_EXCHANGE_NEARER = 3.0
 """... and at least this many times nearer. Why a ratio too: a sensor built off its design (LEDs 3 mm from their
 places, the farthest s31-ledfar starts from) has LEDs up to 1.3 mm nearer a neighbour's place on the default ring
 (4.66 mm apart: at best 1.66 mm from it, 1.8 times nearer), never 3 times; on a ring twice as dense (2.3 mm apart) an
 LED would have to be built 1.75 mm toward a neighbour's place to reach it."""
+LED_EXCHANGE_SCATTER = 5.0
+"""... and nearer by at least this many times the other LEDs' median distance from their own places (the common
+shift, turn and scale of all LEDs taken out: :func:`nlipscalib.core.led_exchange.exchange_margin`) where that is
+under :data:`LED_EXCHANGE_MM`: a calibration that places its LEDs closely tells an exchange of LEDs designed closer
+than 1 mm. The twin's clean calibrations (160x120, one bounce, 16 spp; the shipped scenes and scene copies with LEDs
+in pairs or triples 0.5-1.2 mm apart, 48 captures): 0.026-0.104 mm median (nlipstac_realistic, built off its design,
+0.62-0.73), the worst LED 1.2-4.6 times the median; two LEDs 0.8 mm apart exchanged: 0.65 mm or more nearer each
+other's places, against a margin of 0.13-0.23; 0.5 mm apart: 0.41 or more against 0.15-0.36 (the limit). Random fits
+and builds 0.02-3 mm off, with a common shift, turn and scale, on rings of 3-36 LEDs and pairs or triples 0.5-1.2 mm
+apart: no more cycles named than by 1 mm alone (benchmarks/RESULTS.md, s35-exchange)."""
+LED_EXCHANGE_MIN_MM = 0.1
+"""... and by at least this much (mm) however closely the others sit (a noise-free fit): the smallest design spacing
+an exchange is told at is about twice it."""
+LED_ALIGN_MAX_TURN_DEG = 10.0
+"""The largest turn (degrees) of the fitted LEDs against their design that :func:`nlipscalib.core.led_exchange.
+aligned_places` takes out: a ring built turned by a degree or two moves its LEDs 0.2-0.3 mm along the ring, toward
+their neighbours; a half turn would flip a three-LED ring with two exchanged onto its design."""
 IMAGE_EXCHANGE_GAIN = 0.1
 """``nlips calibrate-leds`` of several captures: a capture whose LED images correlate at least this much better with
 another capture's images of other LEDs than with their own LED's (over the gel) holds them in another order

@@ -70,6 +70,8 @@ from .led_fit import LedFitRanOff, Samples, capture_samples, to_leds
 if TYPE_CHECKING:  # named in hints only
     from pathlib import Path
 
+    from ..core.led_exchange import PlaceExchanges
+
 
 log = logging.getLogger(__name__)
 
@@ -334,35 +336,70 @@ def _exchanged_images(
 ) -> list[str]:
     """The warning (``reorder`` False: ``--keep-led-order``) naming LED images captured in each other's place, told by
     the fitted ``leds`` against the design's (``initial``, else the capture's meta.json LEDs:
-    :func:`nlipscalib.core.led_exchange.exchanged_leds`; ``held``: LEDs not fitted); [] when none. CaptureError with
+    :func:`nlipscalib.core.led_exchange.place_exchanges`; ``held``: LEDs not fitted); [] when none. CaptureError with
     that line when ``reorder`` (the default): :data:`EXCHANGE_REFUSED` says why."""
-    from ..core.led_exchange import exchanged_leds
+    from ..core.led_exchange import place_exchanges
     from ..core.leds import led_arrays
 
     design = led_arrays(tuple(initial) if initial is not None else presses[0].leds)[0]
-    fitted = led_arrays(leds)[0]
-    cycles = exchanged_leds(design, fitted, tuple(held))
-    if not cycles:
-        return []
-    names = image_names(presses[0])
+    found = place_exchanges(design, led_arrays(leds)[0], tuple(held))
+    notes = [_doubtful_line(presses, found, design)] if found.doubtful else []
+    if not found.cycles:
+        return notes
     folders = ", ".join(str(p.folder) for p in presses)
-    parts = []
-    for cycle in cycles:
-        files = [names[i] for i in cycle]
-        said = " and ".join(files) if len(files) == 2 else ", ".join(files[:-1]) + f" and {files[-1]} (a cycle)"
-        places = []
-        for k, i in enumerate(cycle):
-            j = cycle[(k + 1) % len(cycle)]
-            near, own = np.linalg.norm(fitted[i] - design[j]), np.linalg.norm(fitted[i] - design[i])
-            places.append(f"LED {i + 1} {near:.2f} mm from LED {j + 1}'s design place and {own:.2f} mm from its own")
-        parts.append(f"{said} look exchanged (fitted {', '.join(places)})")
+    parts = [f"{_said(presses[0], cycle)} look exchanged ({_where(found, design, cycle)})" for cycle in found.cycles]
     line = (
         f"{folders}: {'; '.join(parts)}: their images were captured in each other's place (the LED wiring, the "
         "controller's LED order or the images' order)"
     )
     if reorder:
         raise CaptureError(line + EXCHANGE_REFUSED)
-    return [line + EXCHANGE_KEPT]
+    return [line + EXCHANGE_KEPT, *notes]
+
+
+def _said(press: Press, cycle: Sequence[int]) -> str:
+    """The images of the LEDs ``cycle`` (0-based), named: "led_03.png and led_04.png", or "..., ... and ... (a
+    cycle)"."""
+    files = [image_names(press)[i] for i in cycle]
+    return " and ".join(files) if len(files) == 2 else ", ".join(files[:-1]) + f" and {files[-1]} (a cycle)"
+
+
+def _where(found: PlaceExchanges, design: np.ndarray, cycle: Sequence[int]) -> str:
+    """Where each LED of ``cycle`` was fitted against the design's places (``found``:
+    :class:`nlipscalib.core.led_exchange.PlaceExchanges`; ``design`` (L, 3) mm), and the other LEDs' scatter."""
+    places = []
+    for k, i in enumerate(cycle):
+        j = cycle[(k + 1) % len(cycle)]
+        near, own = (np.linalg.norm(found.aligned[i] - design[m]) for m in (j, i))
+        places.append(f"LED {i + 1} {near:.2f} mm from LED {j + 1}'s design place and {own:.2f} mm from its own")
+    return f"fitted {', '.join(places)}{_scatter_said(found.scatter)}"
+
+
+DOUBTFUL_EXCHANGE = (
+    ": not refused, as the other LEDs scatter too far about their design places to tell an exchange from the fit's "
+    "error (LEDs designed this close); if the LED wiring, the controller's LED order or the images' order may differ "
+    "from the design, light each of these LEDs alone and see which image shows it"
+)
+"""The tail of the warning of :func:`_exchanged_images` naming a doubtful exchange
+(:class:`nlipscalib.core.led_exchange.PlaceExchanges` ``doubtful``): warned, not refused, since the fit itself may have
+put them so."""
+
+
+def _doubtful_line(presses: Sequence[Press], found: PlaceExchanges, design: np.ndarray) -> str:
+    """The warning naming ``found.doubtful``'s cycles: LEDs fitted each 3 times nearer another's design place than
+    their own, by less than the calibration's scatter lets be told (:data:`DOUBTFUL_EXCHANGE`)."""
+    folders = ", ".join(str(p.folder) for p in presses)
+    parts = [f"{_said(presses[0], c)} may be exchanged ({_where(found, design, c)})" for c in found.doubtful]
+    return f"{folders}: {'; '.join(parts)}{DOUBTFUL_EXCHANGE}"
+
+
+def _scatter_said(scatter: float) -> str:
+    """The clause of :func:`_exchanged_images`' line saying how far the other LEDs sit from their places (``scatter``,
+    mm, :class:`nlipscalib.core.led_exchange.PlaceExchanges`): what the exchanged ones stand out against; "" when no
+    other LED was fitted."""
+    if not np.isfinite(scatter):
+        return ""
+    return f"; the other LEDs {scatter:.2f} mm from theirs, median; all LEDs' common shift, turn and scale taken out"
 
 
 CHECK_ORDER_STEP = 4

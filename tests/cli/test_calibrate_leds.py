@@ -227,3 +227,52 @@ def test_an_earlier_file_without_light_level_or_disks_says_what_was_not_compared
     previous = json.loads(out.read_text(encoding="utf-8"))["previous"]
     assert previous["places"] == "points" and len(previous["not_compared"]) == 2
     assert previous["overall_brightness"] is None
+
+
+def _close_pairs_scene():
+    """The twin (160x120, one bounce, 16 spp) with its 12 LEDs in six pairs 0.8 mm apart along the 9 mm ring, small
+    point-like emitters (no package), each turned 20 deg toward the axis: a design whose neighbours are too close for
+    a fixed 1 mm margin (s35-exchange's scene copy)."""
+    from nlipscalib.sim.scene import load_scene
+
+    angles = [math.pi * g / 3 + (k - 0.5) * 0.8 / 9.0 for g in range(6) for k in range(2)]
+    tilt = math.radians(20.0)
+    places = [(9.0 * math.cos(a), 9.0 * math.sin(a), 0.0) for a in angles]
+    axes = [(-math.sin(tilt) * math.cos(a), -math.sin(tilt) * math.sin(a), math.cos(tilt)) for a in angles]
+    return load_scene("nlipstac").replace(
+        render={"bounces": 1, "spp": 16},
+        camera={"width": 160, "height": 120},
+        leds={"positions": places, "directions": axes, "emitter_diameter": 0.0},
+        led_package={"enabled": False},
+    )
+
+
+def test_a_twin_capture_of_leds_designed_under_a_millimetre_apart_with_two_exchanged_is_refused(
+    tmp_path, capsys, caplog
+):
+    """LEDs in pairs 0.8 mm apart, led_01.png and led_02.png exchanged: the command fitted LED 1 at LED 2's place and
+    back (0.8 mm from their own, a few hundredths from each other's) and wrote the file without a word, the fixed
+    1 mm margin of s33-ledswap out of reach. Now one line names both, exit 2, nothing written; the clean capture
+    of the same design calibrates with no such line."""
+    pytest.importorskip("mitsuba")
+    import shutil
+
+    from nlipscalib.sim.press import render_press
+    from tests.solver.twin_helpers import recorded_anew
+
+    clean = render_press(_close_pairs_scene(), None, tmp_path / "clean", seed=3)
+    swapped = tmp_path / "swapped"
+    shutil.copytree(clean, swapped)
+    (swapped / "led_01.png").rename(swapped / "x.png")
+    (swapped / "led_02.png").rename(swapped / "led_01.png")
+    (swapped / "x.png").rename(swapped / "led_02.png")
+    recorded_anew(swapped)
+    out = tmp_path / "leds.json"
+    capsys.readouterr()
+    assert main(["--no-progress", "calibrate-leds", str(swapped), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{swapped}: led_01.png and led_02.png look exchanged (fitted LED 1 0.0" in err, err
+    assert "mm from theirs, median" in err and not out.exists()
+    caplog.clear()
+    assert main(["--no-progress", "calibrate-leds", str(clean), "--out", str(out)]) == 0
+    assert not [r for r in caplog.records if "exchanged" in r.getMessage()]
