@@ -31,6 +31,7 @@ def test_typo_names_file_section_and_key(tmp_path):
     [
         ({"dome": {"radius": "big"}}, "dome.radius: expected a number"),
         ({"dome": {"shape": "torus"}}, "dome.shape: must be one of"),
+        ({"dome": {"shape": "hemisphre"}}, "got 'hemisphre' \\(did you mean 'hemisphere'"),
         ({"leds": {"count": 40}}, "3 to 24 LEDs"),
         ({"camera": {"position": [0, 0]}}, "camera.position: expected 3 values"),
         ({"render": {"spp": 1.5}}, "render.spp: expected an integer"),
