@@ -114,11 +114,14 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         _add(root, stderr, STDERR_FORMAT)
     _log_file = None
     if log_file:
-        if Path(log_file).is_dir():  # os.open said only "out: Is a directory", naming no option
+        from .cli.folders import names_a_folder
+
+        if names_a_folder(log_file):  # os.open said only "out: Is a directory", naming no option
             from .core.errors import ConfigError
 
             raise ConfigError(
-                f"--log-file {log_file}: a folder; give the file to append the log to (e.g. {log_file}/nlips.log)"
+                f"--log-file {log_file}: a folder; give the file to append the log to (e.g. "
+                f"{Path(log_file) / 'nlips.log'})"
             )
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
         file = AppendFileHandler(log_file)

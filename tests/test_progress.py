@@ -186,6 +186,19 @@ def test_a_folder_given_as_the_log_file_is_one_line_naming_the_option(tmp_path, 
     assert list(folder.iterdir()) == []
 
 
+def test_a_log_file_typed_as_a_folder_is_one_line_naming_the_option(tmp_path, capsys):
+    """`nlips --log-file logs/ cache` (a folder meant, not there yet) said "nlips cache: error: logs: Is a
+    directory", naming no option."""
+    typed = f"{tmp_path / 'logs'}/"
+    assert main(["--log-file", typed, "cache"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips cache: error: --log-file {typed}: a folder; give the file to append the log to (e.g. "
+        f"{tmp_path / 'logs' / 'nlips.log'})"
+    ], err
+    assert not (tmp_path / "logs").exists()
+
+
 LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} \[\d+\] (DEBUG|INFO|WARNING|ERROR|CRITICAL) \S+: ")
 """A log file's line: timestamp, process id, level, logger."""
 

@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..core.press_folders import find_presses, is_press_folder
 from ..core.press_meta import META_FILE, REFERENCE_FOLDER
+
+
+def names_a_folder(path: str | os.PathLike) -> bool:
+    """Whether ``path``, given for a file to write, is a folder or is typed as one (ends in a path separator).
+
+    Why: ``nlips calibrate-leds REF --out out/leds/`` (a folder meant, not there yet) wrote the LED file as
+    ``out/leds`` (pathlib drops the slash) and printed ``out/leds/``; ``--log-file logs/`` said only "logs: Is a
+    directory", naming no option.
+    """
+    text = os.fspath(path)
+    return Path(text).is_dir() or text.endswith(tuple(sep for sep in (os.sep, os.altsep) if sep))
 
 
 def check_not_in_press(out: Path, what: str) -> None:

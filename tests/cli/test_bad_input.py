@@ -75,17 +75,19 @@ def test_demos_solve_workers_is_checked_before_rendering(tmp_path, monkeypatch, 
     assert rendered == []
 
 
-@pytest.mark.parametrize("out", ["folder", "a file/leds.json"])
+@pytest.mark.parametrize("out", ["folder", "a file/leds.json", "new folder/"])
 def test_calibrate_leds_out_is_checked_before_the_fit(presses, a_file, monkeypatch, capsys, out):
-    """`nlips calibrate-leds --out FOLDER` fitted the LEDs, then said "FOLDER -> FOLDER: Is a directory"."""
+    """`nlips calibrate-leds --out FOLDER` fitted the LEDs, then said "FOLDER -> FOLDER: Is a directory"; `--out
+    NEW/` (a folder meant, not there yet) wrote the LED file as NEW, printing NEW/."""
     from nlipscalib import solver
 
     (presses.parent / "folder").mkdir()
     monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
-    target = presses.parent / out
-    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", str(target)]) == 2
-    problem = "a folder; give the LED file to write" if out == "folder" else "a file where a folder is needed"
+    target = str(presses.parent / out) + ("/" if out.endswith("/") else "")
+    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", target]) == 2
+    problem = "a file where a folder is needed" if out.startswith("a file") else "a folder; give the LED file to write"
     _one_line_error(capsys.readouterr().err, problem)
+    assert not (presses.parent / "new folder").exists()
 
 
 def test_calibrate_leds_on_a_full_disk_is_refused_before_the_fit(presses, monkeypatch, capsys):
