@@ -244,6 +244,18 @@ def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path
     assert not out.exists()
 
 
+def test_calibrate_on_a_datasets_reference_names_it_and_the_dataset(presses, tmp_path, capsys):
+    """`nlips calibrate DATASET/reference` said "DATASET/reference: one press, not a folder of presses": it is the
+    dataset's undeformed dome, no press."""
+    out = tmp_path / "calibration"
+    assert main(["--no-progress", "calibrate", str(presses / "reference"), "--out", str(out)]) == 2
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{presses / 'reference'}: the undeformed dome's capture of {presses}, not a folder of presses; give {presses}",
+    )
+    assert not out.exists()
+
+
 def test_calibrate_on_a_folder_without_presses_says_so_before_asking_for_a_reference(tmp_path, capsys):
     """`nlips calibrate EMPTY` (or a folder of something else) said "no reference/ capture of the undeformed dome;
     name one with --reference"; given one, it then said "no press folders found": the presses come first."""
