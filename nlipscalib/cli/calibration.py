@@ -130,7 +130,12 @@ def run(args: argparse.Namespace) -> int:
         root = Path(args.presses)
         if args.reference is not None:
             check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
-            check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or leave out --reference")
+            check_undeformed(
+                args.reference,
+                "the undeformed dome's capture (--reference)",
+                "or leave out --reference",
+                root / REFERENCE_FOLDER,
+            )
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
