@@ -78,7 +78,9 @@ def from_mapping(cls: type[ConfigT], data: Any, where: str = "") -> ConfigT:
     unknown = set(data) - set(fields)
     if unknown:
         known = ", ".join(fields)
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}{_other_kind(unknown)} (known: {known})")
+        (key,) = unknown if len(unknown) == 1 else ("",)  # one mistyped key: its close match ('raduis' -> 'radius')
+        hint = _other_kind(unknown) or (did_you_mean(str(key), list(fields)) if key else "")
+        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}{hint} (known: {known})")
     kwargs = {}
     for name, field in fields.items():
         if name not in data:
