@@ -114,11 +114,14 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         _add(root, stderr, STDERR_FORMAT)
     _log_file = None
     if log_file:
-        if Path(log_file).is_dir():  # os.open said only "out: Is a directory", naming no option
+        from .cli.folders import names_a_folder
+
+        if names_a_folder(log_file):  # os.open said only "out: Is a directory", naming no option
             from .core.errors import ConfigError
 
             raise ConfigError(
-                f"--log-file {log_file}: a folder; give the file to append the log to (e.g. {log_file}/nlips.log)"
+                f"--log-file {log_file}: a folder; give the file to append the log to (e.g. "
+                f"{Path(log_file) / 'nlips.log'})"
             )
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
         file = AppendFileHandler(log_file)
@@ -603,7 +606,7 @@ def progress_bar(total: int | None = None, *, enabled: bool = True, first_draw: 
     """
     from tqdm import tqdm  # the plain bar, as every other bar of the package: see shown_under_a_notebook_cell
 
-    bar = tqdm(total=total, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs)
+    bar = tqdm(total=total, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **_sized(kwargs))
     return _drawn(bar) if first_draw else bar
 
 
@@ -611,7 +614,24 @@ def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:
     """Iterate with a progress bar (see :func:`progress_bar`)."""
     from tqdm import tqdm
 
-    return _drawn(tqdm(iterable, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs))
+    return _drawn(tqdm(iterable, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **_sized(kwargs)))
+
+
+UNSIZED_TERMINAL = (80, 24)
+"""Columns and rows of the bars on a terminal that reports no size (0 x 0: a pty made by ``script``, some ``docker
+exec -t`` and CI runners), where tqdm took -1 x -1 and drew no bar or line at all (each one past the last row)."""
+
+
+def _sized(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """tqdm's ``kwargs`` with ``ncols`` and ``nrows`` of :data:`UNSIZED_TERMINAL` where stderr is a terminal of no
+    size."""
+    try:
+        size = os.get_terminal_size(sys.stderr.fileno())
+    except (AttributeError, OSError, ValueError):  # not a terminal (a file, a notebook's stream), closed
+        return kwargs
+    if size.columns > 0 and size.lines > 0:
+        return kwargs
+    return {"ncols": UNSIZED_TERMINAL[0], "nrows": UNSIZED_TERMINAL[1]} | kwargs
 
 
 UNDRAWN_DELAY_S = 1e-9
@@ -657,7 +677,8 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
             return self
         from tqdm import tqdm
 
-        self.bar = _drawn(tqdm(total=None, desc=self.desc, bar_format="{desc}: {elapsed}", delay=UNDRAWN_DELAY_S))
+        line = _sized({"desc": self.desc, "bar_format": "{desc}: {elapsed}"})
+        self.bar = _drawn(tqdm(total=None, delay=UNDRAWN_DELAY_S, **line))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._tick, daemon=True)
         self._thread.start()

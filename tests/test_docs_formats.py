@@ -385,3 +385,17 @@ def test_the_model_file_section_names_every_info_key_the_training_writes():
     assert "samples_digest" in info  # the source was read
     contacts = _literal_keys("learn.resolution", "calibrated_contacts")
     assert _undocumented([*info, INFO_KEY, *contacts], model) == []
+
+
+def test_the_press_script_example_loads_as_documented(tmp_path):
+    """The `--script` format was documented nowhere but in the emulator's docstring (s35-walk): its example loads,
+    with the moved pose and the default frames before the move the section states."""
+    from nlipscalib.emulator import load_script
+
+    (example,) = re.findall(r"```toml\n(.*?)```", _section("## Press script", "# Dataset spec"), re.S)
+    (tmp_path / "script.toml").write_text(example, encoding="utf-8")
+    coin, cube = load_script(tmp_path / "script.toml")
+    assert (coin.press.indenter.kind, coin.moved) == ("coin", None)
+    assert cube.press.indenter.kind == "cube" and cube.press.indenter.size == 5.0
+    assert cube.moved.azimuth_deg == 30.0 and cube.moved.polar_deg == cube.press.polar_deg == 20.0
+    assert cube.move_after_frames == 5 and "default 5" in _section("## Press script", "# Dataset spec")

@@ -186,6 +186,19 @@ def test_a_folder_given_as_the_log_file_is_one_line_naming_the_option(tmp_path, 
     assert list(folder.iterdir()) == []
 
 
+def test_a_log_file_typed_as_a_folder_is_one_line_naming_the_option(tmp_path, capsys):
+    """`nlips --log-file logs/ cache` (a folder meant, not there yet) said "nlips cache: error: logs: Is a
+    directory", naming no option."""
+    typed = f"{tmp_path / 'logs'}/"
+    assert main(["--log-file", typed, "cache"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips cache: error: --log-file {typed}: a folder; give the file to append the log to (e.g. "
+        f"{tmp_path / 'logs' / 'nlips.log'})"
+    ], err
+    assert not (tmp_path / "logs").exists()
+
+
 LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} \[\d+\] (DEBUG|INFO|WARNING|ERROR|CRITICAL) \S+: ")
 """A log file's line: timestamp, process id, level, logger."""
 
@@ -283,3 +296,27 @@ def test_a_dataset_logs_each_press_and_how_far_it_got_in_the_log_file_without_ve
     ]
     presses = [line for line in lines if line.startswith("press ")]
     assert presses and presses[-1].endswith(f"rendered ({len(presses)} of {len(presses)})"), lines
+
+
+def test_a_terminal_of_no_size_still_shows_the_bars(monkeypatch):
+    """A terminal that reports 0 x 0 (a pty made by `script`, some `docker exec -t` and CI runners): tqdm took -1 x -1
+    and drew nothing, not the bar, not its last line (s35-walk)."""
+    import os
+    import sys
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+        def fileno(self):
+            return 2
+
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    monkeypatch.setattr(os, "get_terminal_size", lambda fd=None: os.terminal_size((0, 0)))
+    monkeypatch.setattr("tqdm.std._screen_shape_wrapper", lambda: lambda fp: (-1, -1))  # what tqdm measured there
+    progress.configure(progress=True)
+    with progress.progress_bar(3, desc="presses") as bar:
+        bar.update(3)
+    assert "presses: 100%" in terminal.getvalue() and "3/3" in terminal.getvalue(), terminal.getvalue()
+    assert (bar.ncols, bar.nrows) == progress.UNSIZED_TERMINAL

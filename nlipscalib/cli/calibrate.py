@@ -125,8 +125,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--coating-reflectance must be in (0, 1], got {args.coating_reflectance}")
     if args.led_diameter is not None and not 0 <= args.led_diameter <= MAX_EMITTER_DIAMETER_MM:
         raise ConfigError(f"--led-diameter must be 0-{MAX_EMITTER_DIAMETER_MM:g} mm, got {args.led_diameter}")
-    if Path(args.out).is_dir():  # found after the fit as "OUT -> OUT: Is a directory"
-        raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
+    from .folders import names_a_folder
+
+    if names_a_folder(args.out):  # found after the fit as "OUT -> OUT: Is a directory"
+        example = Path(args.out) / "leds.json"
+        raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {example})")
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     if args.previous is not None:  # a bad file: one line before the fit
         from ..core.errors import CaptureError

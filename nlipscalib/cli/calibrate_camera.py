@@ -73,8 +73,11 @@ def run(args: argparse.Namespace) -> int:
 
     log = logging.getLogger(__name__)
 
-    if Path(args.out).is_dir():
-        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {args.out}/camera.json)")
+    from .folders import names_a_folder
+
+    if names_a_folder(args.out):
+        example = Path(args.out) / "camera.json"
+        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {example})")
     if not args.square > 0:
         raise ConfigError(f"--square must be > 0 mm, got {args.square}")
     target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)

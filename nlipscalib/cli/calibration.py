@@ -130,13 +130,23 @@ def run(args: argparse.Namespace) -> int:
         root = Path(args.presses)
         if args.reference is not None:
             check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
-            check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or leave out --reference")
+            check_undeformed(
+                args.reference,
+                "the undeformed dome's capture (--reference)",
+                "or leave out --reference",
+                root / REFERENCE_FOLDER,
+            )
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
     if args.reference is not None:
         own_reference_left_out(root, Path(args.reference))
     if reference is None and is_press_folder(root) and is_press_folder(root.parent / REFERENCE_FOLDER):
+        if root.name == REFERENCE_FOLDER:  # "one press" misnamed it: the folder's undeformed dome, not a press
+            raise ConfigError(
+                f"{root}: the undeformed dome's capture of {root.parent}, not a folder of presses; give "
+                f"{shell_word(root.parent)}, which holds the presses and this {REFERENCE_FOLDER}/"
+            )
         # one press of a dataset given for the dataset: "name one with --reference" calibrated that press alone
         raise ConfigError(
             f"{root}: one press, not a folder of presses; its folder {root.parent} holds them and their "

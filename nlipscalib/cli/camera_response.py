@@ -155,9 +155,11 @@ def exposures_of(text: str | None) -> tuple[float, ...]:
 def _check(args: argparse.Namespace) -> None:
     from ..core.atomic import check_writable
     from ..core.errors import ConfigError
+    from .folders import names_a_folder
 
-    if Path(args.out).is_dir():
-        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {args.out}/response.json)")
+    if names_a_folder(args.out):
+        example = Path(args.out) / "response.json"
+        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {example})")
     if not 1 <= args.level <= 255:
         raise ConfigError(f"--level must be 1..255, got {args.level}")
     if args.emulate and (args.port or args.adalight is not None):

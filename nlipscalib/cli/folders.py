@@ -3,12 +3,24 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..core.press_folders import find_presses, is_press_folder
 from ..core.press_meta import META_FILE, REFERENCE_FOLDER
+
+
+def names_a_folder(path: str | os.PathLike) -> bool:
+    """Whether ``path``, given for a file to write, is a folder or is typed as one (ends in a path separator).
+
+    Why: ``nlips calibrate-leds REF --out out/leds/`` (a folder meant, not there yet) wrote the LED file as
+    ``out/leds`` (pathlib drops the slash) and printed ``out/leds/``; ``--log-file logs/`` said only "logs: Is a
+    directory", naming no option.
+    """
+    text = os.fspath(path)
+    return Path(text).is_dir() or text.endswith(tuple(sep for sep in (os.sep, os.altsep) if sep))
 
 
 def check_not_in_press(out: Path, what: str) -> None:
@@ -49,10 +61,12 @@ def check_one_capture(folder: str | Path, role: str) -> None:
         raise ConfigError(f"{folder}: a reconstruction folder (result.npz{made}), not {role}")
 
 
-def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
+def check_undeformed(folder: str | Path, role: str, way_out: str, suggest: str | Path | None = None) -> None:
     """A ConfigError when ``folder`` is a twin render of a press (its meta.json records the indenter) where the
     undeformed dome's capture is expected; ``role`` names that ("the undeformed dome's capture (--reference)"),
-    ``way_out`` ends the line ("or solve without --reference").
+    ``way_out`` ends the line ("or solve without --reference"), ``suggest`` is the reference/ to name when it holds
+    a capture (the solved press's; default: the one beside ``folder``: `nlips solve out/press --reference
+    out/other/press_0001` named out/other/reference, of another dataset).
 
     Why: ``nlips solve PRESS --reference OTHER_PRESS`` and ``nlips calibrate FOLDER --reference FOLDER/press_0002``
     solved against the other press's dented dome, exit 0: its contact and its anchoring came out wrong without a
@@ -73,8 +87,11 @@ def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
     press = provenance.get("press") if isinstance(provenance, dict) and provenance.get("source") == "sim" else None
     if not isinstance(press, dict):
         return
-    sibling = folder.parent / REFERENCE_FOLDER
-    given = f"its {REFERENCE_FOLDER}/ ({sibling}), " if sibling != folder and is_press_folder(sibling) else ""
+    candidates = [Path(suggest)] if suggest is not None else []
+    sibling = next(
+        (c for c in [*candidates, folder.parent / REFERENCE_FOLDER] if c != folder and is_press_folder(c)), None
+    )
+    given = f"{REFERENCE_FOLDER}/ ({sibling}), " if sibling is not None else ""
     raise ConfigError(
         f"{folder}: a press of the twin ({pressed_words(press)}), not {role}; give {given}an undeformed render "
         f"(`nlips render --undeformed` with the press's scene and options), {way_out}"

@@ -256,10 +256,9 @@ def _unrecognized(extras: Sequence[str], options: Sequence[str]) -> str:
 
 def _did_you_mean(typed: str, known: Sequence[str]) -> str:
     """`` (did you mean 'x'?)`` for the closest of ``known`` to ``typed``, or an empty string."""
-    import difflib  # here: only a mistyped command needs it
+    from ..core.config import did_you_mean
 
-    close = difflib.get_close_matches(typed, [k for k in known if k != typed], n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return did_you_mean(typed, known)
 
 
 def complete_if_asked(parser: argparse.ArgumentParser) -> None:

@@ -204,6 +204,15 @@ def _press(args: argparse.Namespace) -> PressConfig:
         return from_mapping(PressConfig, data, args.press_file or "press")
     except TypeError as exc:
         raise ConfigError(f"press: {exc}") from None
+    except ConfigError as exc:  # a typed word named by its flag, not by the key it sets ("press.indenter.kind")
+        found = None if args.press_file else re.fullmatch(r"press\.indenter\.(kind|orientation): (.*)", str(exc))
+        if found is None:
+            raise
+        raise ConfigError(f"{INDENTER_FLAGS[found[1]]}: {found[2]}") from None
+
+
+INDENTER_FLAGS = {"kind": "--indenter", "orientation": "--orientation"}
+"""The flag that sets each indenter key a mistyped word is refused for."""
 
 
 def run(args: argparse.Namespace) -> int:

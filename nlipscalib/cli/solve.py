@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..core.press_checksums import check_unchanged
     from ..core.press_folders import no_presses_error, split_reference
-    from ..core.press_meta import read_meta
+    from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..pipeline import SKIPPED, SOLVED, make_settings, result_dir, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines, print_result
@@ -192,7 +192,11 @@ def run(args: argparse.Namespace) -> int:
     presses, reference = split_reference(args.press, args.reference)
     if args.reference is not None:  # before "no press": the press given as its own --reference leaves none
         check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
-        check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or solve without --reference")
+        own = Path(args.press or ".")  # a folder of presses holds its reference/, a press lies beside it
+        own = own / REFERENCE_FOLDER if (own / REFERENCE_FOLDER).is_dir() else own.parent / REFERENCE_FOLDER
+        check_undeformed(
+            args.reference, "the undeformed dome's capture (--reference)", "or solve without --reference", own
+        )
     if not presses and reference is not None and Path(args.press).resolve() == Path(reference).resolve():
         raise ConfigError(
             f"{args.press}: given as the press and as its --reference; --reference names the undeformed dome's "

@@ -15,7 +15,7 @@ import numbers
 import tomllib
 import types
 import typing
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -78,7 +78,9 @@ def from_mapping(cls: type[ConfigT], data: Any, where: str = "") -> ConfigT:
     unknown = set(data) - set(fields)
     if unknown:
         known = ", ".join(fields)
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}{_other_kind(unknown)} (known: {known})")
+        (key,) = unknown if len(unknown) == 1 else ("",)  # one mistyped key: its close match ('raduis' -> 'radius')
+        hint = _other_kind(unknown) or (did_you_mean(str(key), list(fields)) if key else "")
+        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}{hint} (known: {known})")
     kwargs = {}
     for name, field in fields.items():
         if name not in data:
@@ -268,6 +270,17 @@ def digest(obj: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def did_you_mean(typed: str, known: Sequence[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to ``typed``, or an empty string.
+
+    Why: a mistyped word (``--indenter sphre``, ``shape = "hemisphre"`` in a scene file) listed every choice and
+    left the user to spot the one meant, where a mistyped command or option named it (``cli.help``)."""
+    import difflib  # here: only a mistyped word needs it
+
+    close = difflib.get_close_matches(typed, [k for k in known if k != typed], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
 def _convert(tp: Any, value: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
@@ -283,7 +296,8 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         raise ConfigError(errors[0] if len(errors) == 1 else f"{where}: {value!r} matches none of {args}")
     if origin is typing.Literal:
         if value not in args:
-            raise ConfigError(f"{where}: must be one of {list(args)}, got {value!r}")
+            hint = did_you_mean(value, [a for a in args if isinstance(a, str)]) if isinstance(value, str) else ""
+            raise ConfigError(f"{where}: must be one of {list(args)}, got {value!r}{hint}")
         return value
     if origin in (tuple, list):
         if not isinstance(value, (list, tuple)):

@@ -71,6 +71,9 @@ def get(name: str) -> Experiment:
     if name in UNAVAILABLE:
         raise ConfigError(f"experiment {name}: not available: {UNAVAILABLE[name]}")
     if name not in EXPERIMENTS:
-        raise ConfigError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)}, all)")
+        from ..core.config import did_you_mean
+
+        hint = did_you_mean(name, [*EXPERIMENTS, "all"])
+        raise ConfigError(f"unknown experiment {name!r}{hint} (known: {', '.join(EXPERIMENTS)}, all)")
     module, cls = EXPERIMENTS[name].split(":")
     return getattr(importlib.import_module(f".{module}", __name__), cls)()

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.atomic import whole_dir, write_text
-from ..core.config import from_mapping, read_config_file, to_mapping
+from ..core.config import did_you_mean, from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError, NlipsError
 from . import check, markdown
 from .plan import build_tasks
@@ -128,7 +128,8 @@ class Experiment:
                 raise ConfigError(f"{config_file}: nothing to run (an empty list of presses, LED counts or shapes?)")
             return cfg
         if size not in self.sizes:
-            raise ConfigError(f"experiment {self.name}: unknown size {size!r} (known: {', '.join(self.sizes)})")
+            hint = did_you_mean(size, list(self.sizes))
+            raise ConfigError(f"experiment {self.name}: unknown size {size!r}{hint} (known: {', '.join(self.sizes)})")
         return self.sizes[size]
 
     def tasks(self, cfg: Any, solver_options: dict | None = None) -> list[Task]:

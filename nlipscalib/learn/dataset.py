@@ -917,9 +917,10 @@ class CalibrationDataset:
                 f"{self.folder}: a folder of presses, not a calibration dataset; its calibration dataset is "
                 f"{inside.parent} (give that folder)"
             )
-        if not path.is_file() and (self.folder.parent / INDEX_FILE).is_file():  # its samples/ (or another sub-folder)
+        if not path.is_file() and (self.folder.parent / INDEX_FILE).is_file():  # its samples/, index.json, ...
+            kind = "a file" if self.folder.is_file() else "a folder"  # index.json given: it said "a folder"
             raise CaptureError(
-                f"{self.folder}: a folder inside a calibration dataset, not one; the dataset is {self.folder.parent} "
+                f"{self.folder}: {kind} inside a calibration dataset, not one; the dataset is {self.folder.parent} "
                 "(give that folder)"
             )
         if path.is_file() and (torn := file_problem(path)) is not None:

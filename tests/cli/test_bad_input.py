@@ -75,17 +75,19 @@ def test_demos_solve_workers_is_checked_before_rendering(tmp_path, monkeypatch, 
     assert rendered == []
 
 
-@pytest.mark.parametrize("out", ["folder", "a file/leds.json"])
+@pytest.mark.parametrize("out", ["folder", "a file/leds.json", "new folder/"])
 def test_calibrate_leds_out_is_checked_before_the_fit(presses, a_file, monkeypatch, capsys, out):
-    """`nlips calibrate-leds --out FOLDER` fitted the LEDs, then said "FOLDER -> FOLDER: Is a directory"."""
+    """`nlips calibrate-leds --out FOLDER` fitted the LEDs, then said "FOLDER -> FOLDER: Is a directory"; `--out
+    NEW/` (a folder meant, not there yet) wrote the LED file as NEW, printing NEW/."""
     from nlipscalib import solver
 
     (presses.parent / "folder").mkdir()
     monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
-    target = presses.parent / out
-    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", str(target)]) == 2
-    problem = "a folder; give the LED file to write" if out == "folder" else "a file where a folder is needed"
+    target = str(presses.parent / out) + ("/" if out.endswith("/") else "")
+    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", target]) == 2
+    problem = "a file where a folder is needed" if out.startswith("a file") else "a folder; give the LED file to write"
     _one_line_error(capsys.readouterr().err, problem)
+    assert not (presses.parent / "new folder").exists()
 
 
 def test_calibrate_leds_on_a_full_disk_is_refused_before_the_fit(presses, monkeypatch, capsys):
@@ -238,6 +240,18 @@ def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path
     _one_line_error(
         capsys.readouterr().err,
         f"{presses / 'p1'}: one press, not a folder of presses; its folder {presses} holds them and their reference/",
+    )
+    assert not out.exists()
+
+
+def test_calibrate_on_a_datasets_reference_names_it_and_the_dataset(presses, tmp_path, capsys):
+    """`nlips calibrate DATASET/reference` said "DATASET/reference: one press, not a folder of presses": it is the
+    dataset's undeformed dome, no press."""
+    out = tmp_path / "calibration"
+    assert main(["--no-progress", "calibrate", str(presses / "reference"), "--out", str(out)]) == 2
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{presses / 'reference'}: the undeformed dome's capture of {presses}, not a folder of presses; give {presses}",
     )
     assert not out.exists()
 

@@ -24,6 +24,17 @@ from nlipscalib.cli import main
         ),
         (["--height", "120"], "--height 120 without --width: the images would be 640x120 pixels"),
         (["--variant", "fast"], "--variant: must be one of ['auto', 'cuda_ad_rgb', 'llvm_ad_rgb', 'scalar_rgb']"),
+        # a mistyped word was "press.indenter.kind: must be one of [...]": a key never typed, the choice meant unsaid
+        (
+            ["--indenter", "sphre"],
+            "--indenter: must be one of ['sphere', 'cube', 'cylinder', 'cone', 'screw', 'coin', 'cap', 'gear', 'key', "
+            "'brick', 'mesh'], got 'sphre' (did you mean 'sphere'?)\n",
+        ),
+        (
+            ["--indenter", "cube", "--orientation", "cornr"],
+            "--orientation: must be one of ['default', 'face', 'edge', 'corner', 'side', 'end'], got 'cornr' (did you "
+            "mean 'corner'?)\n",
+        ),
         # press options with --undeformed were silently ignored
         (["--undeformed", "--indenter", "coin"], "--indenter is not used with --undeformed: the undeformed dome has"),
         (["--undeformed", "--depth", "2"], "--depth is not used with --undeformed"),

@@ -57,10 +57,24 @@ def test_a_twin_press_given_for_the_undeformed_dome_is_refused_before_any_work(t
         f"nlips {command[0]}: error: {twin}/press_0002: a press of the twin (a sphere of 6 mm pressed 1.50 mm deep), "
         "not "
     ), line
-    assert f"give its reference/ ({twin}/reference), an undeformed render" in line and line.endswith(way_out), line
+    assert f"give reference/ ({twin}/reference), an undeformed render" in line and line.endswith(way_out), line
     assert captured.out == ""
     assert not any((twin / name / "nlips").exists() for name in ("press_0001", "press_0002"))
     assert not (twin / "calibration").exists() and not (twin / "leds.json").exists()
+
+
+def test_a_press_of_another_dataset_given_as_the_reference_names_the_solved_presss_reference(twin, tmp_path, capsys):
+    """`nlips solve out/press --reference out/other/press_0001` said "give its reference/ (out/other/reference)":
+    the other dataset's undeformed dome, not the solved press's."""
+    import shutil
+
+    other = tmp_path / "other"
+    other.mkdir()
+    shutil.copytree(twin / "press_0002", other / "press_0002")
+    shutil.copytree(twin / "reference", other / "reference")
+    assert main(["solve", str(twin / "press_0001"), "--reference", str(other / "press_0002")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"give reference/ ({twin}/reference), an undeformed render" in line, line
 
 
 def test_the_undeformed_render_is_taken_as_the_reference(twin, capsys):

@@ -22,7 +22,7 @@ def test_default_scene_is_nlipstac():
 def test_typo_names_file_section_and_key(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text("[dome]\nraduis = 15.0\n", encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"bad\.toml.*dome.*raduis"):
+    with pytest.raises(ConfigError, match=r"bad\.toml.*dome.*raduis'\] \(did you mean 'radius'\?\) \(known: "):
         load_scene(bad)
 
 
@@ -31,6 +31,7 @@ def test_typo_names_file_section_and_key(tmp_path):
     [
         ({"dome": {"radius": "big"}}, "dome.radius: expected a number"),
         ({"dome": {"shape": "torus"}}, "dome.shape: must be one of"),
+        ({"dome": {"shape": "hemisphre"}}, "got 'hemisphre' \\(did you mean 'hemisphere'"),
         ({"leds": {"count": 40}}, "3 to 24 LEDs"),
         ({"camera": {"position": [0, 0]}}, "camera.position: expected 3 values"),
         ({"render": {"spp": 1.5}}, "render.spp: expected an integer"),

@@ -182,6 +182,8 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     for bad, message in (
         ([args[0], str(tmp_path / "empty"), *args[2:]], "empty: no images (.bmp"),
         ([*args[:-1], str(tmp_path)], "a folder; give the JSON file to write"),
+        # a folder meant, not there yet: the camera file was written as that name
+        ([*args[:-1], f"{tmp_path / 'cams'}/"], f"a folder; give the JSON file to write (e.g. {tmp_path / 'cams'}/"),
         ([*args[:5], "-3", *args[6:]], "--square must be > 0 mm, got -3.0"),
     ):
         assert main(bad) == 2

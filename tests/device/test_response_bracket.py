@@ -402,6 +402,19 @@ def test_a_bracket_folder_that_cannot_give_a_curve_is_one_line(tmp_path, capsys,
     assert not out.exists()
 
 
+def test_an_out_typed_as_a_folder_is_one_line_before_the_bracket(tmp_path, capsys):
+    """`--out curves/` (a folder meant, not there yet) wrote the response file as `curves`, printing `curves/`."""
+    folder = _write_bracket(tmp_path / "b", EXPOSURES)
+    typed = f"{tmp_path / 'curves'}/"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", typed]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips calibrate-camera-response: error: --out {typed}: a folder; give the JSON file to write (e.g. "
+        f"{tmp_path / 'curves' / 'response.json'})"
+    ], err
+    assert not (tmp_path / "curves").exists()
+
+
 def test_a_camera_that_takes_one_exposure_at_a_time_of_its_own_is_fitted_at_it(webcam, tmp_path, capsys):
     """A camera rounding an exposure to a step of its own without a word (asked 4 ms, took 4.3, reads back 4: still
     brighter than 2.8 ms and darker than 5.7; V4L2 is asked whole 100 us steps): with the fitted curve undone, that

@@ -118,6 +118,9 @@ def test_a_shipped_baseline_is_named_by_its_name(tmp_path, capsys):
         (["experiment", "nope"], "unknown experiment 'nope'"),
         (["experiment", "presses", "--size", "huge"], "unknown size 'huge'"),
         (["experiment", "q1", "--size", "huge"], "unknown size 'huge'"),
+        # a mistyped name listed the known ones without the close match (s35-walk)
+        (["experiment", "ablaton"], "unknown experiment 'ablaton' (did you mean 'ablation'?) (known: q1, q2,"),
+        (["experiment", "q1", "--size", "quik"], "unknown size 'quik' (did you mean 'quick'?) (known: quick,"),
         (["experiment", "q1", "--solver-option", "max_iter=3"], "--solver-option 'max_iter=3'"),
         (["experiment", "q1", "--solver-option", "max_iters=0"], "max_iters"),
         (["experiment", "q1", "--solver-option", "max_iters=abc"], "--solver-option max_iters: expected an integer"),

@@ -97,6 +97,20 @@ def test_cli_train_on_the_samples_folder_names_the_dataset_above_it(calib, tmp_p
     assert not (tmp_path / "m.pt").exists()
 
 
+def test_cli_train_on_the_index_file_names_it_a_file_and_the_dataset(calib, tmp_path, capsys):
+    """`nlips train DATASET/index.json` (the file, typed for its folder) said "DATASET/index.json: a folder inside a
+    calibration dataset": it is a file."""
+    dataset = tmp_path / "calibration"
+    shutil.copytree(calib.folder, dataset)
+    assert main(["train", str(dataset / "index.json"), "--out", str(tmp_path / "m.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips train: error: {dataset / 'index.json'}: a file inside a calibration dataset, not one; the dataset is "
+        f"{dataset} (give that folder)"
+    ], err
+    assert not (tmp_path / "m.pt").exists()
+
+
 def test_a_dataset_without_led_geometry_opens_with_a_warning(calib, tmp_path, caplog):
     """index.json written before 2026-12-03 lacks led_positions/led_directions: usable, said once, not silent."""
     import logging
