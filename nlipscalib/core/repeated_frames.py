@@ -14,6 +14,10 @@ k-1's) above a row and LED k's below it. Whole-frame medians missed it (s28 QA: 
 of the twin's sphere press with its top half from LED 4 was called a repeat, its top quarter not seen at all), so
 the check compares the images row of blocks by row of blocks, then column by column (a camera mounted turned 90
 degrees: its rolling shutter reads the columns; the same test on the transposed blocks).
+Where the capture's LED model is given (:class:`ModelLight`: its design's LEDs, or the solve's), a line counts only
+where the model's lights of the two LEDs differ: LEDs designed in close pairs (0.5-1.2 mm apart) light the gel far
+from the pair within 1 % of each other, which the images alone took for the previous LED's light (every clean
+capture of such designs warned, s35-pairband).
 
 Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED was lit (the LED switched on late, or
 off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
@@ -65,6 +69,10 @@ EVERYWHERE_LINE_SAMPLES = 100
 MIN_LINE_SAMPLES = 16
 """Fewest dense samples a pixel row (column) needs to count in :func:`dark_lines` (the solve samples ~100 a row:
 :data:`nlipscalib.solver.led_checks.DENSE_LINE_SAMPLES`)."""
+RING_SIDE_IMAGES = 3
+"""Images each side of an LED image and the one before it that :func:`lagged_bands` looks along the ring, with a
+model, for one whose LED the model tells from the previous LED at a line (an LED's partner in a close pair, or both
+others of a close triple, light the gel there as it does)."""
 LIT_QUANTILE = 0.95
 """The quantile of an LED's light (over the modelled light) that stands for its lit samples when over half of them
 are dark (:func:`lit_level`): a dark band can cover at most this share of its image and be found."""
@@ -119,14 +127,17 @@ ExpectedLight = Callable[[np.ndarray, np.ndarray], np.ndarray]
 (n,) float (:func:`model_light`)."""
 
 
-def model_light(depth: np.ndarray, normals: np.ndarray, camera: object, leds: object) -> ExpectedLight:
-    """The LEDs' summed light on the undeformed gel by the image model (``core.leds.led_shading``, albedo 1), at the
-    pixels asked for: what "dark in every LED image" is judged against.
+class ModelLight:
+    """The image model's light on the undeformed gel (``core.leds.led_shading``, albedo 1, the channels' mean) at
+    the pixels asked for: called, the LEDs' summed light (an :data:`ExpectedLight`, what "dark in every LED image"
+    is judged against); :meth:`each`, each LED's (what tells two LEDs' images alike by design from a lag band).
 
     Why: a camera that sees the whole dome down to its base (a wide view, the gel not filling the frame,
     s32-rimview) sees there gel that the LEDs, at the base's own height, light at a tenth of the median or less in
     direct light: a band of "columns 4-10 (left) of every LED image are dark" was reported at 160x120 and
-    ``nlips calibrate-leds`` refused the capture. The light over the model's is even over the gel.
+    ``nlips calibrate-leds`` refused the capture. The light over the model's is even over the gel. And LEDs designed
+    in close pairs (0.5-1.2 mm apart, s35-exchange) light the gel far from the pair within 1 % of each other: the
+    images alone called those lines the previous LED's light (:func:`lagged_bands`).
 
     Parameters
     ----------
@@ -134,17 +145,33 @@ def model_light(depth: np.ndarray, normals: np.ndarray, camera: object, leds: ob
     normals : (H, W, 3) float, unit, toward the camera.
     camera : core Camera -- the capture's (its ``unproject``: the asked pixels' rays only; the whole frame's,
         ``Camera.rays``, take 0.2 s at 640x480, where the check takes ~15 ms).
-    leds : sequence of Led -- the capture's LEDs (its design's until calibrated).
+    leds : sequence of Led -- the capture's LEDs (its design's until calibrated), in capture order.
     """
-    from .camera import depth_to_points
-    from .leds import led_shading
 
-    def light(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        rays = camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
-        points = depth_to_points(depth[rows, cols].astype(np.float64), rays)
-        return led_shading(points, normals[rows, cols], leds).sum(axis=(0, 2))
+    def __init__(self, depth: np.ndarray, normals: np.ndarray, camera: object, leds: object) -> None:
+        self.depth, self.normals, self.camera, self.leds = depth, normals, camera, leds
 
-    return light
+    def each(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(L, n) float: each LED's light at the pixels (``rows``, ``cols``: (n,) int), the channels' mean."""
+        return self._shading(rows, cols).mean(axis=2)
+
+    def __call__(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(n,) float: the LEDs' summed light at the pixels (LEDs and channels summed)."""
+        return self._shading(rows, cols).sum(axis=(0, 2))
+
+    def _shading(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(L, n, 3) float: ``led_shading`` at the pixels' points on the undeformed gel."""
+        from .camera import depth_to_points
+        from .leds import led_shading
+
+        rays = self.camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
+        points = depth_to_points(self.depth[rows, cols].astype(np.float64), rays)
+        return led_shading(points, self.normals[rows, cols], self.leds)
+
+
+def model_light(depth: np.ndarray, normals: np.ndarray, camera: object, leds: object) -> ModelLight:
+    """The image model's light on the undeformed gel (:class:`ModelLight`: its parameters)."""
+    return ModelLight(depth, normals, camera, leds)
 
 
 def _over_model(light: np.ndarray, model: np.ndarray) -> np.ndarray:
@@ -180,7 +207,14 @@ def frame_checks(
     """
     inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6  # blocks wholly on the gel (rounding)
     blocks = [_block_means(image) for image in linear]
-    bands = lagged_bands(blocks, inside)
+    # each LED's modelled light tells lines where two LEDs light the gel alike by design (LEDs in close pairs,
+    # s35-pairband) from the previous light repeated (~2 ms at 160x120, ~6 ms at 640x480)
+    model = (
+        _model_blocks(expected, inside)
+        if isinstance(expected, ModelLight) and len(expected.leds) == len(blocks)
+        else None
+    )
+    bands = lagged_bands(blocks, inside, model)
     partly = {band.index for band in bands}
     found = []
     for index in range(1, len(blocks)):
@@ -544,7 +578,18 @@ def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None, axis: str 
     return DarkBand(index, (int(bands[start]) * b, (int(bands[stop - 1]) + 1) * b), where, axis)
 
 
-def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBand]:
+def _model_blocks(model: ModelLight, inside: np.ndarray) -> np.ndarray:
+    """(L, h, w) float: each LED's modelled light (:meth:`ModelLight.each`) at the centres of the ``inside`` blocks
+    (0 elsewhere)."""
+    b = CAPTURE_CHECK_BLUR
+    rows, cols = np.nonzero(inside)
+    light = np.zeros((len(model.leds), *inside.shape))
+    if rows.size:
+        light[:, rows, cols] = model.each(rows * b + b // 2, cols * b + b // 2)
+    return light
+
+
+def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray, model: np.ndarray | None = None) -> list[LaggedBand]:
     """The LED images whose top or bottom rows (else left or right columns) hold the light captured before them:
     the LED switched while a rolling shutter read the frame out (a camera mounted turned 90 degrees reads the
     columns one after another).
@@ -558,6 +603,11 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
     ----------
     blocks : list of (h, w) float32 -- the LED images' block means (:func:`_block_means`), in capture order.
     inside : (h, w) bool -- the blocks wholly on the gel.
+    model : (L, h, w) float or None -- each LED's modelled light at the blocks (:func:`_model_blocks`), in capture
+        order: a line counts only where the model's two lights (the image's LED's and the previous LED's) differ
+        by :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (LEDs designed in close pairs light
+        the gel far from the pair within 1 % of each other: there an image alike its predecessor is no lag);
+        None: the images alone.
 
     Returns
     -------
@@ -570,8 +620,7 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
         # the images after and before the pair (after the last, the first; before the first, the last: the LEDs
         # of a ring in capture order) tell where the ring's light changes from LED to LED around the previous one;
         # with two images there are none, and every line counts
-        after = blocks[(index + 1) % len(blocks)] if len(blocks) > 2 else None
-        before = blocks[index - 2] if len(blocks) > 2 else None
+        sides = _ring_sides(len(blocks), index, model is not None)
         lit = inside & (np.maximum(current, neighbour) > EXPOSURE_LIGHT_FRACTION)
         # the columns are the transposed blocks' rows: one test, one threshold for both readout directions
         found = [
@@ -579,7 +628,13 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
             for axis, turn in (("rows", np.asarray), ("columns", np.transpose))
             if (
                 band := _lagged_lines(
-                    turn(current), turn(neighbour), turn(lit), index, axis, _turned(turn, after), _turned(turn, before)
+                    turn(current),
+                    turn(neighbour),
+                    turn(lit),
+                    index,
+                    axis,
+                    [[_side(blocks, model, i, turn) for i in side] for side in sides],
+                    None if model is None else (turn(model[index]), turn(model[index - 1])),
                 )
             )
         ]
@@ -593,6 +648,26 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
     return bands
 
 
+def _ring_sides(count: int, index: int, modelled: bool) -> list[list[int]]:
+    """The images (0-based, capture order) after ``index`` and before ``index - 1`` (a ring: after the last, the
+    first) that :func:`_lagged_lines` compares the previous image with, each side's nearest first: one each, or
+    with a model up to :data:`RING_SIDE_IMAGES` (the nearest whose LED the model tells from the previous one, line by
+    line: an LED's partner in a close pair lights the gel far from the pair as it does); none with two images."""
+    if count <= 2:
+        return []
+    reach = min(RING_SIDE_IMAGES if modelled else 1, count - 2)
+    later = [(index + step) % count for step in range(1, reach + 1)]
+    earlier = [(index - 1 - step) % count for step in range(1, reach + 1)]
+    return [later, earlier]
+
+
+def _side(
+    blocks: list[np.ndarray], model: np.ndarray | None, at: int, turn: Callable[[np.ndarray], np.ndarray]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Image ``at``'s block means and its LED's modelled light (None without a model), turned."""
+    return turn(blocks[at]), None if model is None else turn(model[at])
+
+
 def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) -> float:
     """The share of the ``lit`` blocks inside ``band`` whose relative ``difference`` (h, w) from the previous image
     is :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE` or more: the image's own light, or noise alone
@@ -604,19 +679,14 @@ def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) 
     return float(np.mean(values >= REPEATED_FRAME_DIFFERENCE)) if values.size else 1.0
 
 
-def _turned(turn: Callable[[np.ndarray], np.ndarray], blocks: np.ndarray | None) -> np.ndarray | None:
-    """``turn(blocks)``, None for None."""
-    return None if blocks is None else turn(blocks)
-
-
 def _lagged_lines(
     current: np.ndarray,
     neighbour: np.ndarray,
     lit: np.ndarray,
     index: int,
     axis: str,
-    after: np.ndarray | None = None,
-    before: np.ndarray | None = None,
+    sides: list[list[tuple[np.ndarray, np.ndarray | None]]] | None = None,
+    model: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> LaggedBand | None:
     """:func:`lagged_bands`' test of one LED image's rows of blocks (``axis`` "columns": of the transposed blocks).
 
@@ -625,18 +695,26 @@ def _lagged_lines(
     current, neighbour : (h, w) float32 -- the image's and the previous image's block means (rows: the lines
         tested).
     lit : (h, w) bool -- the blocks on the gel that either image lights.
-    after, before : (h, w) float32 or None -- the block means of the image after ``current`` and of the image
-        before ``neighbour``: a line counts only where each differs from ``neighbour`` by
+    sides : list of lists of ((h, w) float32, (h, w) float or None) or None -- the images after ``current`` and
+        before ``neighbour`` (:func:`_ring_sides`), each side's nearest first, with their LEDs' modelled light (or
+        None): a line counts only where, on each side, the nearest image whose LED the model tells from the
+        previous LED there (without a model: the nearest) differs from ``neighbour`` by
         :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (elsewhere the image's own light cannot be
-        told from the previous one's); None: every line counts.
+        told from the previous one's); None or empty: every line counts.
+    model : ((h, w) float, (h, w) float) or None -- the modelled light of the image's LED and of the previous LED
+        at the blocks: a line counts only where they differ by
+        :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (where the LED model says the two lights
+        are alike, LEDs in close pairs, the images' likeness is no lag); None: not asked.
     """
     counted = lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS
+    previous_light = None if model is None else model[1]
     # both sides: where the previous LED is the ring's brightest or dimmest at a line (a wide view's far base
     # rim; gel both LEDs light only by the indirect light), the image's own light lies as near it as the image
     # before it does, not between it and the image after (s33-rimband)
-    for other in (image for image in (after, before) if image is not None):
-        contrast = np.abs(other - neighbour) / np.where(lit, np.maximum(np.maximum(other, neighbour), 1e-12), 1)
-        counted[counted] = _row_medians(contrast[counted], lit[counted]) >= LAGGED_BAND_CONTRAST
+    for side in sides or []:
+        counted[counted] = _side_tells(side, neighbour, previous_light, lit, counted)
+    if model is not None:
+        counted[counted] = _line_contrast(*model, lit, counted) >= LAGGED_BAND_CONTRAST
     rows = np.flatnonzero(counted)
     if len(rows) <= LAGGED_BAND_ROWS:
         return None
@@ -647,6 +725,39 @@ def _lagged_lines(
     # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
     kind = (difference < REPEATED_FRAME_DIFFERENCE).astype(np.int8)
     return _edge_band(kind, rows, index, axis)
+
+
+def _line_contrast(one: np.ndarray, other: np.ndarray, lit: np.ndarray, counted: np.ndarray) -> np.ndarray:
+    """(n,) float: the median relative difference of ``one`` and ``other`` (h, w) over each ``counted`` line's
+    ``lit`` blocks."""
+    contrast = np.abs(one - other) / np.where(lit, np.maximum(np.maximum(one, other), 1e-12), 1)
+    return _row_medians(contrast[counted], lit[counted])
+
+
+def _side_tells(
+    side: list[tuple[np.ndarray, np.ndarray | None]],
+    neighbour: np.ndarray,
+    previous_light: np.ndarray | None,
+    lit: np.ndarray,
+    counted: np.ndarray,
+) -> np.ndarray:
+    """(n,) bool, the ``counted`` lines: the image of ``side`` (nearest first) that stands for its side at each
+    line differs from ``neighbour`` by :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more. The
+    nearest stands, or with modelled light the nearest whose LED the model tells from the previous LED's
+    (``previous_light``) at that line; a line where none is told does not count."""
+    tells = np.zeros(int(counted.sum()), bool)
+    open_ = np.ones_like(tells)
+    for image, light in side:
+        stands = (
+            open_
+            if light is None
+            else open_ & (_line_contrast(light, previous_light, lit, counted) >= LAGGED_BAND_CONTRAST)
+        )
+        tells[stands] = (_line_contrast(image, neighbour, lit, counted) >= LAGGED_BAND_CONTRAST)[stands]
+        open_ &= ~stands
+        if not open_.any():
+            break
+    return tells
 
 
 def _row_medians(values: np.ndarray, counted: np.ndarray) -> np.ndarray:

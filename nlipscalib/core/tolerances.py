@@ -600,7 +600,10 @@ zone where neighbouring LEDs light alike spans more lines of blocks the finer th
 (right) show led_07.png's light" (undeformed nlipstac_wide, 320x240; with the next image alone 13 of 24 clean wide
 captures at 160x120, 320x240 and 640x480, direct light and one bounce, at the frame's sides and bottom: led_02.png's
 columns 20-64, led_08.png's 585-619 at 640x480); with both sides none, and a band read before the switch over 3/8 of
-the frame still found at each size (benchmarks/RESULTS.md, s33-rimband)."""
+the frame still found at each size (benchmarks/RESULTS.md, s33-rimband). With the capture's LED model the two LEDs'
+modelled lights must differ there by as much too, and each side's image is the nearest whose LED the model tells
+from the previous one at that line: LEDs designed in close pairs light the gel far from the pair alike (every clean
+paired capture was warned; a true lag of a pair's first LED mostly unseen, before s35-pairband)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image

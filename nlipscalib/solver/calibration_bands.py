@@ -34,6 +34,7 @@ from ..core.repeated_frames import (
     dark_line,
     frame_checks,
     lagged_line,
+    model_light,
     repeated_line,
 )
 
@@ -250,10 +251,12 @@ def check_left(press: Press, mask: np.ndarray, line: str) -> None:
 
 def _frame_faults(press: Press) -> tuple[list[tuple[int, float]], list[LaggedBand]]:
     """The capture's LED images that repeat the one before them, whole and partly (:func:`.frame_checks`' first two
-    lists; none without a surface)."""
+    lists; none without a surface). The bands judged with each LED's modelled light (the design's LEDs): LEDs
+    designed in close pairs light the gel alike far from the pair, which is no lag (s35-pairband)."""
     if press.reference is None:
         return [], []
-    return frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))[:2]
+    expected = model_light(press.reference.depth, press.reference.normals, press.camera, press.leds)
+    return frame_checks(press.linear_led_images, np.isfinite(press.reference.depth), expected)[:2]
 
 
 def _own_light(press: Press) -> list[int]:

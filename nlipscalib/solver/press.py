@@ -51,6 +51,7 @@ from ..core.repeated_frames import (
     dark_line,
     frame_checks,
     lagged_line,
+    model_light,
     repeated_line,
 )
 from ..progress import PRESS_DETAIL
@@ -497,7 +498,10 @@ def _undeformed_dark_bands(press: Press, kwargs: dict) -> tuple[list[DarkBand | 
         return [], []
 
     def bands() -> tuple[list[DarkBand | LaggedBand], list[tuple[int, float]]]:
-        repeated, lagged = frame_checks(undeformed.linear_led_images, np.isfinite(undeformed.reference.depth))[:2]
+        # each LED's modelled light (the solve's LEDs) judges the bands: LEDs in close pairs light the gel alike
+        expected = model_light(undeformed.reference.depth, undeformed.reference.normals, undeformed.camera, leds)
+        gel = np.isfinite(undeformed.reference.depth)
+        repeated, lagged = frame_checks(undeformed.linear_led_images, gel, expected)[:2]
         # another LED's light there: no verdict on its own light
         shifted = {band.index for band in lagged} | {i for i, _ in repeated}
         live = [i for i in _live_leds(undeformed, kwargs.get("options")) if i not in shifted]
