@@ -103,7 +103,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.atomic import check_writable
+    import contextlib
+
+    from ..core.atomic import check_can_make
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
     from ..core.press_checksums import check_unchanged
@@ -112,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
     from ..pipeline.settings import disk_leds
     from ..progress import BATCH, press_lines
-    from .folders import check_one_capture, check_undeformed
+    from .folders import check_one_capture, check_undeformed, remove_if_left_empty
 
     press_lines(BATCH)  # a line per solved press; how each was solved with -v
     check_count("--workers", args.workers, minimum=0)
@@ -166,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         disk_leds(args.leds)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_own_folder(out, presses, root / DEFAULT_DIR)
-    check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
+    check_can_make(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
     damaged = _left_out_damaged(root, presses, out)
     presses = [p for p in presses if p.name not in damaged]
@@ -174,8 +176,12 @@ def run(args: argparse.Namespace) -> int:
     if args.led_model != "points":  # recorded when not the default: the datasets of point LEDs keep their records
         solve["led_model"] = args.led_model
     run = dataset_run(presses, reference, cfg, solve=solve)
-    # held from before the solves: a build of other samples into this --out is refused now, not after them
-    with hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF):
+    with contextlib.ExitStack() as stack:
+        # a run ended before the dataset's first write (Ctrl-C during the solves, a press refused) left an empty
+        # calibration/ (its hold's folder), which `nlips train` then took for a dataset; a started one is kept
+        remove_if_left_empty(stack, [out])
+        # held from before the solves: a build of other samples into this --out is refused now, not after them
+        stack.enter_context(hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF))
         return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged)
 
 

@@ -160,6 +160,9 @@ def _check(args: argparse.Namespace) -> None:
     if names_a_folder(args.out):
         example = Path(args.out) / "response.json"
         raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {example})")
+    if args.figure and names_a_folder(args.figure):  # found after the capture as "FIGURE: Is a directory"
+        example = Path(args.figure) / "response.png"
+        raise ConfigError(f"--figure {args.figure}: a folder; give the PNG file to write (e.g. {example})")
     if not 1 <= args.level <= 255:
         raise ConfigError(f"--level must be 1..255, got {args.level}")
     if args.emulate and (args.port or args.adalight is not None):

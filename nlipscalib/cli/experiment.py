@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.plan:  # the report replaces the folder whole: never a folder of other files
             check_replaceable(report, RESULTS)
     if args.write_baseline:
-        _writable_file("--write-baseline", Path(args.write_baseline), probe=not args.plan)
+        _writable_file("--write-baseline", args.write_baseline, probe=not args.plan)
     code = 0
     for name, exp, cfg, work, report in runs:
         if args.plan:
@@ -265,13 +265,15 @@ def _writable_folder(option: str, given: str | Path | None, folder: Path, probe:
         raise OSError(exc.errno, exc.strerror, str(folder)) from None
 
 
-def _writable_file(option: str, path: Path, probe: bool = True) -> None:
-    """``path`` can be written as a file: no folder has its name, its folder is writable."""
+def _writable_file(option: str, path: str, probe: bool = True) -> None:
+    """``path`` (as typed: a trailing slash kept) can be written as a file: no folder has its name, nor is it typed as
+    one, its folder is writable."""
     from ..core.errors import ConfigError
+    from .folders import names_a_folder
 
-    if path.is_dir():
+    if names_a_folder(path):  # `base.json/` (typed as a folder) was written as the file base.json
         raise ConfigError(f"{option} {path}: is a folder; give a file name")
-    _writable_folder(option, path, path.parent, probe)
+    _writable_folder(option, Path(path), Path(path).parent, probe)
 
 
 def _summary(tasks: dict) -> str:

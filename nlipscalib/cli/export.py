@@ -40,7 +40,11 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.onnx_export import export_onnx
     from ..learn.publish import model_files_held
     from ..progress import print_result, say
+    from .folders import names_a_folder
 
+    if args.out and names_a_folder(args.out):  # `--out x.onnx/` wrote the file x.onnx (pathlib drops the slash)
+        example = Path(args.out) / Path(args.model).with_suffix(".onnx").name
+        raise ConfigError(f"--out {args.out}: a folder; give the ONNX file to write (e.g. {example})")
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")

@@ -247,11 +247,20 @@ class Parser(argparse.ArgumentParser):
 
 
 def _unrecognized(extras: Sequence[str], options: Sequence[str]) -> str:
-    """argparse's "unrecognized arguments: ..." with the close match of each mistyped option after it."""
-    words = [
-        f"{word}{_did_you_mean(word.split('=', 1)[0], options)}" if word.startswith("-") else word for word in extras
-    ]
-    return f"unrecognized arguments: {' '.join(words)}"
+    """argparse's "unrecognized arguments: ..." with the close match of the mistyped options after them all:
+    "--rio auto (did you mean '--roi'?)"; several: "(did you mean '--roi' for --rio, '--overwrite' for --overwrit?)".
+
+    Why: the hint was put after each option, between it and its value ("--rio (did you mean '--roi'?) auto")."""
+    from ..core.config import closest
+
+    typed = [word.split("=", 1)[0] for word in extras if word.startswith("-")]
+    guesses = [(word, close) for word in typed if (close := closest(word, options)) is not None]
+    hint = ""
+    if len(guesses) == 1:
+        hint = f" (did you mean {guesses[0][1]!r}?)"
+    elif guesses:
+        hint = f" (did you mean {', '.join(f'{known!r} for {typed}' for typed, known in guesses)}?)"
+    return f"unrecognized arguments: {' '.join(extras)}{hint}"
 
 
 def _did_you_mean(typed: str, known: Sequence[str]) -> str:

@@ -329,6 +329,7 @@ def _press_after_roi(args: argparse.Namespace) -> None:
 def _summary(statuses: dict[str, str]) -> int:
     """Say one line of counts (and the failed presses, and those without contact) on stderr; exit code 1 when any
     failed (a press without contact is not a failure: nothing to solve)."""
+    from ..pipeline.status import BROKEN
     from ..progress import say
 
     failed = {name: s for name, s in statuses.items() if s.startswith("failed")}
@@ -340,6 +341,12 @@ def _summary(statuses: dict[str, str]) -> int:
     todo = "press deeper and capture again, or leave a capture of the undeformed dome out of the folder"
     without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)}: {todo})" if flat else ""
     say(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}", warning=bool(failed))
+    # a press's error was logged as it happened (an ERROR line, on stderr and in the --log-file): said again here,
+    # each came twice; only the presses a killed solver process left (one line for them all) are named with why
+    said = [name for name, status in failed.items() if status != BROKEN]
+    if said:
+        say(f"  failed, each said above: {', '.join(said)}", warning=True)
     for name, status in failed.items():
-        say(f"  {name}: {status}", warning=True)
+        if status == BROKEN:
+            say(f"  {name}: {status}", warning=True)
     return 1 if failed else 0

@@ -131,9 +131,14 @@ def run(args: argparse.Namespace) -> int:
         hidden = tuple(int(h) for h in args.hidden.split(","))
     except ValueError:
         raise ConfigError(f"--hidden must be like 256,256,128, got {args.hidden!r}") from None
+    from .folders import names_a_folder
+
     out = Path(args.out)
-    if out.is_dir():  # `--out models` for the folder to train into: the model file in it is meant
-        raise ConfigError(f"--out {out}: a folder; give the model file to write in it (e.g. {out / 'nlipsnet.pt'})")
+    # `--out models` for the folder to train into: the model file in it is meant; `--out models.pt/` (typed as a
+    # folder) wrote the file models.pt, pathlib dropping the slash
+    if names_a_folder(args.out):
+        example = out / "nlipsnet.pt"
+        raise ConfigError(f"--out {args.out}: a folder; give the model file to write in it (e.g. {example})")
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}

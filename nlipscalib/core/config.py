@@ -275,10 +275,17 @@ def did_you_mean(typed: str, known: Sequence[str]) -> str:
 
     Why: a mistyped word (``--indenter sphre``, ``shape = "hemisphre"`` in a scene file) listed every choice and
     left the user to spot the one meant, where a mistyped command or option named it (``cli.help``)."""
+    close = closest(typed, known)
+    return f" (did you mean {close!r}?)" if close is not None else ""
+
+
+def closest(typed: str, known: Sequence[str]) -> str | None:
+    """The closest of ``known`` (other than ``typed``) to ``typed`` (:func:`difflib.get_close_matches`, cutoff 0.6),
+    or None when none is close."""
     import difflib  # here: only a mistyped word needs it
 
     close = difflib.get_close_matches(typed, [k for k in known if k != typed], n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return close[0] if close else None
 
 
 def _convert(tp: Any, value: Any, where: str) -> Any:

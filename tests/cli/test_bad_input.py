@@ -278,3 +278,36 @@ def test_a_tilde_the_shell_left_alone_is_the_home_folder_not_a_folder_named_tild
     (home / "presses").symlink_to(presses)
     assert main(["solve", "~/presses/p1", "--out=~/res", "--no-figures", "--no-progress"]) == 0
     assert (home / "res" / "result.npz").is_file() and not (work / "~").exists()
+
+
+@pytest.mark.parametrize(
+    "command, option, example",
+    [
+        (["export", "{tmp}/m.pt", "--out", "{typed}"], "--out", "a folder; give the ONNX file to write (e.g. "),
+        (["train", "{tmp}/data", "--out", "{typed}"], "--out", "a folder; give the model file to write in it"),
+        (
+            ["calibrate-camera-response", "--emulate", "nlipstac", "--out", "{tmp}/r.json", "--figure", "{typed}"],
+            "--figure",
+            "a folder; give the PNG file to write (e.g. ",
+        ),
+        (
+            ["experiment", "q1", "--out", "{tmp}/work", "--write-baseline", "{typed}"],
+            "--write-baseline",
+            "is a folder; give a file name",
+        ),
+    ],
+    ids=lambda c: c[0] if isinstance(c, list) else "",
+)
+def test_a_file_option_typed_as_a_folder_is_one_line(tmp_path, monkeypatch, capsys, command, option, example):
+    """`nlips export MODEL --out x.onnx/` (a folder meant, not there yet) wrote the file x.onnx; `train --out m.pt/`,
+    `calibrate-camera-response --figure figs/` and `experiment --write-baseline b.json/` wrote theirs the same way
+    (pathlib drops the slash), or failed after the work on "Is a directory"."""
+    from nlipscalib.experiments import framework
+
+    monkeypatch.setattr(framework, "run_experiment", lambda *a, **k: pytest.fail("the experiment ran"))
+    typed = f"{tmp_path / 'new.onnx'}/"
+    argv = [part.format(tmp=tmp_path, typed=typed) for part in command]
+    assert main(["--no-progress", *argv]) == 2
+    line = _one_line_error(capsys.readouterr().err, f"{option} {typed}: {example}")
+    assert "Traceback" not in line
+    assert not (tmp_path / "new.onnx").exists()

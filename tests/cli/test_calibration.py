@@ -269,3 +269,25 @@ def test_calibrate_led_model_disks_solves_every_label_press_with_the_led_files_d
     assert radius() == 1.8
     assert main(command) == 0  # the same LED file's points: solved again, not the disks' result reused
     assert radius() is None
+
+
+def test_an_interrupted_calibrate_leaves_no_empty_dataset_folder_and_runs_again(session, tmp_path, monkeypatch):
+    """Ctrl-C of `nlips calibrate` before the dataset's first write (during the solves) left an empty calibration/
+    folder (made for the run's hold), which `nlips train` then took for a dataset. Now a folder the run made and
+    left empty goes with it; an empty one already there (a killed run's) is a dataset not started: built into."""
+    from nlipscalib import pipeline
+
+    root, _ = session
+    out = tmp_path / "new" / "calibration"
+
+    def interrupted(*args, **kwargs):
+        assert out.is_dir()  # held before the solves: made by then
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patched:
+        patched.setattr(pipeline, "solve_presses", interrupted)
+        assert main(["calibrate", str(root), "--out", str(out), "--workers", "1", "--no-progress"]) == 130
+    assert not (tmp_path / "new").exists()
+    out.mkdir(parents=True)  # as a killed run (SIGKILL) leaves it
+    assert main(["calibrate", str(root), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
+    assert (out / "index.json").is_file()

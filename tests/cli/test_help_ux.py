@@ -58,9 +58,18 @@ def test_a_mistyped_option_names_the_close_one_under_its_commands_usage(capsys):
     """argparse said "nlips: error: unrecognized arguments: --rio" under nlips's own usage line."""
     err = _error(capsys, "solve", "PRESS", "--rio", "auto")
     assert "usage: nlips solve" in err
-    assert "nlips solve: error: unrecognized arguments: --rio (did you mean '--roi'?) auto" in err
+    # the hint after the option's value, not between them ("--rio (did you mean '--roi'?) auto")
+    assert "nlips solve: error: unrecognized arguments: --rio auto (did you mean '--roi'?)\n" in err
     err = _error(capsys, "eval", "PRESS", "--regoin=contact")
     assert "--regoin=contact (did you mean '--region'?)" in err
+
+
+def test_several_mistyped_options_are_named_after_all_the_arguments(capsys):
+    err = _error(capsys, "solve", "PRESS", "--rio", "auto", "--overwirte", "--zzzzzz")
+    assert (
+        "unrecognized arguments: --rio auto --overwirte --zzzzzz "
+        "(did you mean '--roi' for --rio, '--overwrite' for --overwirte?)\n" in err
+    ), err
 
 
 def test_an_unknown_option_far_from_any_gets_no_guess(capsys):

@@ -111,6 +111,31 @@ def test_quiet_leaves_stderr_to_warnings_and_errors(presses, tmp_path, workers):
     assert len(_lines(in_log, SUMMARY)) == 1 and "1 solved, 0 skipped" in in_log, in_log
 
 
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_failed_press_of_a_folder_says_its_error_once(presses, tmp_path, workers):
+    """`nlips solve FOLDER` printed each failed press's error twice: as it happened (ERROR), then again under the
+    closing counts. Now the counts name the failed presses, their errors said once above; exit 1 still."""
+    folder = tmp_path / "presses"
+    for name in ("press_a", "press_b"):
+        _copy(presses / name, folder / name)
+    led = folder / "press_b" / "led_03.png"
+    led.write_bytes(led.read_bytes()[:100])  # cut short: press_b fails
+    log = tmp_path / "run.log"
+    run = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", "--log-file", str(log), "solve", str(folder)]
+        + ["--workers", workers, "--config", str(presses / "solver.toml")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert run.returncode == 1 and run.stdout == f"{folder / 'press_a' / 'nlips'}\n", run
+    err = run.stderr.splitlines()
+    assert len(_lines(run.stderr, "led_03.png")) == 1, err  # the error, once
+    assert "1 solved, 0 skipped (identical result), 1 failed" in err, err
+    assert "  failed, each said above: press_b" in err, err
+    assert len(_lines(log.read_text(encoding="utf-8"), "led_03.png")) == 1  # the log file holds it once too
+
+
 def _copy(src: Path, dst: Path) -> None:
     import shutil
 
