@@ -58,7 +58,7 @@ MAX_HIDDEN_WIDTH = 4096
 (``--hidden 100000000``), which ran out of memory in the first batch, a traceback after loading the dataset."""
 DEFAULT_WEIGHT_DECAY = 0.05
 """:attr:`TrainConfig.weight_decay` by default (Q2 medium, docs/experiments/RESULTS.md, s35-unseen: 0.01 moved the
-unseen split by -0.04 deg, 0.05 by -0.2, 0.2 by ...)."""
+unseen split by -0.04 / -0.05 deg vs truth at two seeds, 0.05 by -0.19 at each of three)."""
 MAX_WEIGHT_DECAY = 1.0
 """Largest :attr:`TrainConfig.weight_decay`: at the start's learning rate (2e-3) a decay of 1 shrinks the weights by
 0.2 % a step, half of a weight in ~350 steps (a Q2 medium epoch is ~240 steps); measured: 0.01 and 0.05."""
@@ -130,9 +130,10 @@ class TrainConfig:
     weight_decay: float = DEFAULT_WEIGHT_DECAY
     """Decoupled weight decay (``torch.optim.AdamW``: each step shrinks every weight by ``lr * weight_decay`` of
     itself, apart from the gradient's step), on every parameter. Why: the unseen indenters' colours (a coin's
-    engraved walls) lie outside every calibration colour, and the net's answer there is its extrapolation; smaller
-    weights extrapolate more gently. On Q2 medium it took the unseen split 3.83 / 3.80 -> 3.64 / ... deg vs truth at
-    two training seeds, the seen split unchanged (docs/experiments/RESULTS.md, s35-unseen). 0: Adam without decay,
+    engraved walls) lie outside every calibration colour, and the net's answer there is its extrapolation; with
+    smaller weights it reads those walls' steepness better (the coin's 20-50 deg: -1.4 to -2.8 deg). On Q2 medium it
+    took the unseen split 3.83 / 3.80 / 3.78 -> 3.64 / 3.61 / 3.59 deg vs truth at three training seeds, the seen
+    split 0.01-0.05 better (docs/experiments/RESULTS.md, s35-unseen). 0: Adam without decay,
     the training before the thirty-fifth session (then left out of the checkpoints' and model keys' options, so
     those of earlier trainings stay theirs)."""
 
