@@ -27,6 +27,7 @@ OPTION_OF = {
     "schedule": "--schedule",
     "batch_size": "--batch-size",
     "lr": "--lr",
+    "weight_decay": "--weight-decay",
     "seed": "--seed",
     "max_seconds": "--max-minutes",
     "threads": "--threads",
@@ -72,6 +73,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--batch-size", type=int, default=1024, help="samples per optimiser step (default 1024)")
     p.add_argument("--lr", type=float, default=2e-3, help="Adam's learning rate (default 0.002)")
+    p.add_argument(
+        "--weight-decay",
+        type=float,
+        help="decoupled weight decay (AdamW; default: TrainConfig's, 0.2: the net extrapolates more gently to "
+        "colours no calibration press showed, which lifted Q2's unseen indenters; 0: Adam without decay, as before "
+        "the thirty-fifth session)",
+    )
     p.add_argument(
         "--seed", type=int, default=0, help="seed of the validation split, weights, batch order, dropout (default 0)"
     )
@@ -141,7 +149,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {args.out}: a folder; give the model file to write in it (e.g. {example})")
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
-    given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}
+    given = {
+        k: v
+        for k, v in (("patience", args.patience), ("schedule", args.schedule), ("weight_decay", args.weight_decay))
+        if v is not None
+    }
     if args.threads is not None:  # else TrainConfig's default
         given["threads"] = check_count("--threads", args.threads, minimum=0) or usable_cores()
     if not args.max_minutes >= 0:  # NaN too

@@ -34,13 +34,16 @@ CHECKPOINT_FILE = "checkpoint.pt"
 
 
 def jsonable_config(cfg: TrainConfig) -> dict:
-    """``cfg`` as JSON values; the synthetic samples' options left out when ``synthetic_share`` is 0 (none made), so
-    the checkpoints and model keys of trainings without them stay those made before the options existed."""
+    """``cfg`` as JSON values; the synthetic samples' options left out when ``synthetic_share`` is 0 (none made), and
+    ``weight_decay`` when 0 (Adam without decay), so the checkpoints and model keys of trainings without them stay
+    those made before the options existed."""
     d = dataclasses.asdict(cfg)
     d["hidden"] = list(cfg.hidden)
     if not d.get("synthetic_share"):
         for key in ("synthetic_share", "synthetic_reflectance"):
             d.pop(key, None)
+    if not d.get("weight_decay"):
+        d.pop("weight_decay", None)
     return d
 
 

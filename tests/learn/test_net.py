@@ -318,6 +318,8 @@ def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp
         ("--seed", "-1"),
         ("--hidden", "16,0"),
         ("--dropout", "-0.1"),
+        ("--weight-decay", "-1"),
+        ("--weight-decay", "nan"),
     ],
 )
 def test_cli_train_refuses_out_of_range_options_in_one_line_naming_them(calib, tmp_path, capsys, option, value):
@@ -343,7 +345,8 @@ def test_cli_train_into_a_folder_names_the_model_file_to_give(calib, tmp_path, c
 @pytest.mark.parametrize(
     "field, value",
     [("max_epochs", 0), ("batch_size", 0), ("lr", -1.0), ("lr", float("inf")), ("max_seconds", -60.0)]
-    + [("patience", -1), ("threads", 0), ("seed", -1), ("max_epochs", 2.5), ("hidden", (16, 0))],
+    + [("patience", -1), ("threads", 0), ("seed", -1), ("max_epochs", 2.5), ("hidden", (16, 0))]
+    + [("weight_decay", -0.1), ("weight_decay", float("nan")), ("weight_decay", 2.0), ("weight_decay", True)],
 )
 def test_train_config_refuses_out_of_range_fields(field, value):
     from nlipscalib.core.errors import ConfigError
@@ -351,6 +354,26 @@ def test_train_config_refuses_out_of_range_fields(field, value):
 
     with pytest.raises(ConfigError, match=f"^{field} "):
         TrainConfig(**{field: value})
+
+
+def test_weight_decay_is_on_by_default_shrinks_the_weights_and_is_left_out_of_the_keys_at_zero(calib, tmp_path):
+    """TrainConfig.weight_decay (AdamW) by default: the same training without it ends with larger weights; at 0 the
+    options a checkpoint and the experiments' model keys hold are those of the trainings before it (Adam)."""
+    from nlipscalib.learn.checkpoint import jsonable_config
+    from nlipscalib.learn.train import TrainConfig, train
+
+    default = TrainConfig().weight_decay
+    assert default > 0 and jsonable_config(TrainConfig())["weight_decay"] == default
+    assert "weight_decay" not in jsonable_config(TrainConfig(weight_decay=0))
+
+    def weights(decay: float) -> float:
+        cfg = TrainConfig(hidden=(8, 8), dropout=0.0, max_epochs=3, batch_size=256, weight_decay=decay, lr=0.02)
+        out = tmp_path / f"m{decay}.pt"
+        train(calib, cfg, out, exclude=[HELD_OUT], progress=False)
+        net = load_model(out).net
+        return sum(float((m.weight**2).sum()) for m in net.mlp if hasattr(m, "in_features"))
+
+    assert weights(1.0) < 0.8 * weights(0.0)
 
 
 @pytest.mark.parametrize("scripted, best", [([5.0, 4.0, 3.0], 3), ([3.0, 4.0, 5.0], 1)])
