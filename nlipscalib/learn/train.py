@@ -59,7 +59,8 @@ MAX_HIDDEN_WIDTH = 4096
 DEFAULT_WEIGHT_DECAY = 0.2
 """:attr:`TrainConfig.weight_decay` by default (Q2 medium, docs/experiments/RESULTS.md, s35-unseen: 0.01 moved the
 unseen split by -0.04 / -0.05 deg vs truth at two seeds, 0.05 by -0.19 at each of three, 0.2 by -0.51 / -0.36 at
-two, the seen split no worse at any)."""
+two, the seen split no worse at any; at full size, two seeds, the lead's rerun: seen -0.03 / -0.04 vs truth, unseen
+-0.06 / -0.14 vs the labels and +0.02 / -0.06 vs truth: a small gain there)."""
 MAX_WEIGHT_DECAY = 1.0
 """Largest :attr:`TrainConfig.weight_decay`: at the start's learning rate (2e-3) a decay of 1 shrinks the weights by
 0.2 % a step, half of a weight in ~350 steps (a Q2 medium epoch is ~240 steps); measured: 0.01, 0.05, 0.2."""

@@ -371,7 +371,7 @@ def test_weight_decay_is_on_by_default_shrinks_the_weights_and_is_left_out_of_th
         out = tmp_path / f"m{decay}.pt"
         train(calib, cfg, out, exclude=[HELD_OUT], progress=False)
         net = load_model(out).net
-        return sum(float((m.weight**2).sum()) for m in net.mlp if hasattr(m, "in_features"))
+        return sum(float((m.weight.detach() ** 2).sum()) for m in net.mlp if hasattr(m, "in_features"))
 
     assert weights(1.0) < 0.8 * weights(0.0)
 
