@@ -89,19 +89,8 @@ def test_quiet_leaves_stderr_to_warnings_and_errors(presses, tmp_path, workers):
     """No `--quiet`: INFO lines always reached stderr (`2>/dev/null` hid the warnings too). Now `nlips --quiet`
     leaves stderr to warnings and errors, in the worker processes too; stdout keeps the results, the --log-file
     every line."""
-    folder = tmp_path / "presses"
-    for name in ("press_a", "press_b"):
-        _copy(presses / name, folder / name)
-    led = folder / "press_b" / "led_03.png"
-    led.write_bytes(led.read_bytes()[:100])  # cut short: press_b fails (an ERROR line and the summary's warning)
-    log = tmp_path / "run.log"
-    run = subprocess.run(
-        [sys.executable, "-m", "nlipscalib", "--quiet", "--log-file", str(log), "solve", str(folder)]
-        + ["--workers", workers, "--config", str(presses / "solver.toml")],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
+    folder, log = tmp_path / "presses", tmp_path / "run.log"
+    run = _solve_with_a_failing_press(presses, folder, log, workers, "--quiet")
     assert run.returncode == 1 and run.stdout == f"{folder / 'press_a' / 'nlips'}\n", run
     err = run.stderr.splitlines()
     assert not [line for line in err if line.startswith("INFO ")] and not _lines(run.stderr, SUMMARY), err
@@ -115,19 +104,8 @@ def test_quiet_leaves_stderr_to_warnings_and_errors(presses, tmp_path, workers):
 def test_a_failed_press_of_a_folder_says_its_error_once(presses, tmp_path, workers):
     """`nlips solve FOLDER` printed each failed press's error twice: as it happened (ERROR), then again under the
     closing counts. Now the counts name the failed presses, their errors said once above; exit 1 still."""
-    folder = tmp_path / "presses"
-    for name in ("press_a", "press_b"):
-        _copy(presses / name, folder / name)
-    led = folder / "press_b" / "led_03.png"
-    led.write_bytes(led.read_bytes()[:100])  # cut short: press_b fails
-    log = tmp_path / "run.log"
-    run = subprocess.run(
-        [sys.executable, "-m", "nlipscalib", "--no-progress", "--log-file", str(log), "solve", str(folder)]
-        + ["--workers", workers, "--config", str(presses / "solver.toml")],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
+    folder, log = tmp_path / "presses", tmp_path / "run.log"
+    run = _solve_with_a_failing_press(presses, folder, log, workers, "--no-progress")
     assert run.returncode == 1 and run.stdout == f"{folder / 'press_a' / 'nlips'}\n", run
     err = run.stderr.splitlines()
     assert len(_lines(run.stderr, "led_03.png")) == 1, err  # the error, once
@@ -192,3 +170,19 @@ def test_a_local_dask_cluster_logs_as_the_command_says(tmp_path, verbose):
     in_log = log.read_text(encoding="utf-8")
     assert len(_lines(in_log, SUMMARY)) == 4 and len(_lines(in_log, *DETAILS)) == 4, in_log
     assert len(_lines(err, SUMMARY)) == (4 if verbose else 0), err
+
+
+def _solve_with_a_failing_press(presses, folder, log, workers: str, flag: str) -> subprocess.CompletedProcess:
+    """`nlips FLAG --log-file LOG solve FOLDER --workers N` in a process of its own, FOLDER holding press_a and a
+    press_b whose led_03.png is cut short (it fails: an ERROR line and the summary's count)."""
+    for name in ("press_a", "press_b"):
+        _copy(presses / name, folder / name)
+    led = folder / "press_b" / "led_03.png"
+    led.write_bytes(led.read_bytes()[:100])
+    return subprocess.run(
+        [sys.executable, "-m", "nlipscalib", flag, "--log-file", str(log), "solve", str(folder)]
+        + ["--workers", workers, "--config", str(presses / "solver.toml")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
