@@ -99,8 +99,8 @@ def run(args: argparse.Namespace) -> int:
         f"{len(result['failed'])} failed",
         warning=failed,
     )
-    for name, error in result["failed"]:
-        progress.say(f"  {name}: {error}", warning=True)
+    if failed:  # each failure's error was logged as it happened (sim.dataset_pool): named here, not said twice
+        progress.say("  failed, each said above: " + ", ".join(name for name, _ in result["failed"]), warning=True)
     return 1 if result["failed"] else 0
 
 
