@@ -565,7 +565,7 @@ def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_pa
         assert mine
         assert main(args) == 1
     said = capsys.readouterr()
-    assert calls == [] and "led_02.png missing, but process" in said.out + said.err
+    assert calls == [] and "led_02.png missing, but process" in said.out + said.err + caplog.text
     assert main(args) == 0 and calls == ["press_0001"]
     assert "(its results nlips/ go with it)" in caplog.text
 
