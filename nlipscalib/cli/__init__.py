@@ -254,8 +254,16 @@ def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
         _log_start(argv)
         check_output_names(args)
         # a session's fault is warned of once per command (said_once), again by a later command of this process
-        with progress.results_to_log_file(), said_once.scope():
-            code = int(args.func(args) or 0)
+        from .folders import left_empty_removed
+
+        # a run that fails, is stopped (Ctrl-C, SIGTERM: _end_at_once) or refused leaves no empty output folder made
+        ended: dict[str, int] = {}
+        with (
+            progress.results_to_log_file(),
+            said_once.scope(),
+            left_empty_removed(_outputs(args), kept=lambda: ended.get("code") == 0),
+        ):
+            code = ended["code"] = int(args.func(args) or 0)
     except (NlipsError, MissingDependencyError) as exc:
         code = _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
@@ -456,6 +464,9 @@ def _end_at_once(line: str | None, code: int) -> NoReturn:
     _stop_workers()
     claims.release_all()
     atomic.remove_in_progress()
+    folders = sys.modules.get(f"{__name__}.folders")
+    if folders is not None:  # the output folders the run made and left empty (as Ctrl-C removes them)
+        folders.remove_all_left_empty()
     if line is not None:
         print(line, file=sys.stderr)
         progress.file_log(logging.WARNING, f"{line} (exit status {code})")  # os._exit: no end line otherwise
@@ -609,6 +620,11 @@ def _file_in_the_way(name: str | Path | None, where: str | Path | None) -> bool:
 OUTPUT_OPTIONS = ("out", "report", "figure")
 """The dests of the options naming what a command writes (``--out``, experiment's ``--report``,
 calibrate-camera-response's ``--figure``), checked by :func:`check_output_names`."""
+
+
+def _outputs(args: argparse.Namespace) -> list[str]:
+    """The paths the options of :data:`OUTPUT_OPTIONS` name (files or folders), as given."""
+    return [os.fspath(v) for dest in OUTPUT_OPTIONS if isinstance(v := getattr(args, dest, None), (str, Path))]
 
 
 def check_output_names(args: argparse.Namespace) -> None:

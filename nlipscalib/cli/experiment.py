@@ -113,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
     from ..progress import EXPERIMENT, press_lines, print_result, say
+    from .folders import left_empty_removed
     from .options import fill_defaults
 
     press_lines(EXPERIMENT)  # its task bar and report say how the presses went; each press's lines with -v
@@ -147,51 +148,54 @@ def run(args: argparse.Namespace) -> int:
         own = Path(args.out) / f"{name}-{size}"
         report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         runs.append((name, exp, exp.config(args.size, args.config), work, report))
-    warn_if_too_long(args.out, "experiment")  # Windows' 260 characters: before hours of work
-    for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
-        _writable_folder("--out", args.out, work, probe=not args.plan)
-        _writable_folder("--report", args.report, report, probe=not args.plan)
-        if not args.plan:  # the report replaces the folder whole: never a folder of other files
-            check_replaceable(report, RESULTS)
-    if args.write_baseline:
-        _writable_file("--write-baseline", args.write_baseline, probe=not args.plan)
-    code = 0
-    for name, exp, cfg, work, report in runs:
-        if args.plan:
-            _print_plan(name, size, exp, cfg, work, options, args.keep_old)
-            continue
-        doc = run_experiment(
-            exp,
-            cfg,
-            work,
-            report,
-            size=size,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            solver_options=options,
-            keep_presses=args.keep_presses,
-            keep_old=args.keep_old,
-        )
-        failed = doc["tasks"]["failed"]
-        print_result(report)  # stdout: each report's folder alone (scripts); how its run went on stderr
-        say(
-            f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}",
-            warning=bool(failed),
-        )
-        code = code or (1 if failed else 0)
+    # a run stopped (Ctrl-C, SIGTERM) or failed before its first write leaves no empty work or report folder made
+    # (the writability probes below make them)
+    with left_empty_removed([folder for *_, work, report in runs for folder in (work, report)], kept=lambda: True):
+        warn_if_too_long(args.out, "experiment")  # Windows' 260 characters: before hours of work
+        for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
+            _writable_folder("--out", args.out, work, probe=not args.plan)
+            _writable_folder("--report", args.report, report, probe=not args.plan)
+            if not args.plan:  # the report replaces the folder whole: never a folder of other files
+                check_replaceable(report, RESULTS)
         if args.write_baseline:
-            write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
-        if args.check:
-            worse = check.compare(doc["check_figures"], baseline)
-            if worse:
-                say(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:", warning=True)
-                say(check.format_worse(worse), warning=True)
-                return 1
-            say(f"{name}: no accuracy figure worse than {args.check}")
-    if args.name == "all":
-        for name, why in UNAVAILABLE.items():
-            say(f"{name}: not run: {why}", warning=True)
-    return code
+            _writable_file("--write-baseline", args.write_baseline, probe=not args.plan)
+        code = 0
+        for name, exp, cfg, work, report in runs:
+            if args.plan:
+                _print_plan(name, size, exp, cfg, work, options, args.keep_old)
+                continue
+            doc = run_experiment(
+                exp,
+                cfg,
+                work,
+                report,
+                size=size,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                solver_options=options,
+                keep_presses=args.keep_presses,
+                keep_old=args.keep_old,
+            )
+            failed = doc["tasks"]["failed"]
+            print_result(report)  # stdout: each report's folder alone (scripts); how its run went on stderr
+            say(
+                f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}",
+                warning=bool(failed),
+            )
+            code = code or (1 if failed else 0)
+            if args.write_baseline:
+                write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
+            if args.check:
+                worse = check.compare(doc["check_figures"], baseline)
+                if worse:
+                    say(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:", warning=True)
+                    say(check.format_worse(worse), warning=True)
+                    return 1
+                say(f"{name}: no accuracy figure worse than {args.check}")
+        if args.name == "all":
+            for name, why in UNAVAILABLE.items():
+                say(f"{name}: not run: {why}", warning=True)
+        return code
 
 
 RUN_OPTIONS = (

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from ..core.errors import ConfigError
@@ -111,22 +111,62 @@ def pressed_words(press: dict) -> str:
 def remove_if_left_empty(stack: contextlib.ExitStack, folders: Iterable[Path]) -> None:
     """Have ``stack`` remove, as it closes, each of ``folders`` (and their ancestors) that does not exist now and is
     empty then, deepest first; call it before entering what may make them (the run's holds: core.claims makes the
-    folder a claim file lies in).
+    folder a claim file lies in). A SIGTERM meanwhile removes them too (:func:`remove_all_left_empty`).
 
     Why: a run's holds on its outputs are taken before its inputs are read, and make the folders their claim files
     lie in (``OUT/PRESS`` for a press's result under --out, a missing parent of --out); a run refused for a bad
     input or model (one line, nothing written) left them empty behind it. A folder another process has put
     something into meanwhile (its claims, results) is kept."""
+    stack.enter_context(left_empty_removed(folders))
+
+
+@contextlib.contextmanager
+def left_empty_removed(folders: Iterable[str | os.PathLike], kept: Callable[[], bool] | None = None) -> Iterator[None]:
+    """Remove, as the block ends, each of ``folders`` (and their ancestors) that does not exist now and is empty
+    then, deepest first; unless ``kept`` (asked as the block ends without an exception) says True: a command that
+    succeeded keeps what it made as it made it. A SIGTERM during the block removes them too: the command's
+    handler ends the process at once (``cli._end_at_once``, no ``finally`` runs) and calls
+    :func:`remove_all_left_empty`.
+
+    Why: a run stopped by SIGTERM before its first write (a scheduler's time limit while ``nlips calibrate`` solved)
+    left its empty output folder, which the next run or ``nlips train`` took for a dataset never finished, where
+    Ctrl-C removed it (s36-apiwalk)."""
+    missing = _missing(folders)
+    _LEFT_EMPTY.append(missing)
+    ended_well = False
+    try:
+        yield
+        ended_well = True
+    finally:
+        with contextlib.suppress(ValueError):  # a SIGTERM's handler may have taken it meanwhile
+            _LEFT_EMPTY.remove(missing)
+        if not (ended_well and kept is not None and kept()):
+            _remove_empty(missing)
+
+
+def remove_all_left_empty() -> None:
+    """Remove every folder of the blocks of :func:`left_empty_removed` under way that is empty now (for a SIGTERM
+    handler about to end the process, after the claims and temporaries in them were removed)."""
+    while _LEFT_EMPTY:
+        _remove_empty(_LEFT_EMPTY.pop())
+
+
+_LEFT_EMPTY: list[list[Path]] = []
+"""The folders (deepest first) of each block of :func:`left_empty_removed` under way, innermost last."""
+
+
+def _missing(folders: Iterable[str | os.PathLike]) -> list[Path]:
+    """Those of ``folders`` and their ancestors that do not exist now, deepest first."""
     missing = set()
     for folder in folders:
-        for part in (folder, *folder.parents):
+        for part in (Path(folder), *Path(folder).parents):
             if part.exists():
                 break
             missing.add(part)
+    return sorted(missing, key=lambda p: len(p.parts), reverse=True)
 
-    def remove() -> None:
-        for part in sorted(missing, key=lambda p: len(p.parts), reverse=True):
-            with contextlib.suppress(OSError):  # not empty (a result, another run's claim), or gone
-                part.rmdir()
 
-    stack.callback(remove)
+def _remove_empty(folders: list[Path]) -> None:
+    for part in folders:
+        with contextlib.suppress(OSError):  # not empty (a result, another run's claim), a file, or gone
+            part.rmdir()

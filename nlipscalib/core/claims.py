@@ -112,6 +112,9 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S, note: dict | No
         acquired = _acquire(path, me, stale_s)
     except BaseException:  # disk full, permission: no claim, and no registration left to mislead release_all
         acquired = False
+        if registered:  # Ctrl-C right after the link: the file is this process's (it was left behind, s36-apiwalk)
+            with contextlib.suppress(OSError):
+                _release(path, me)
         raise
     finally:
         if registered and not acquired:
@@ -119,8 +122,8 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S, note: dict | No
     if not acquired:
         yield False
         return
-    _HEARTBEATS.add(path, me, interval=max(0.05, stale_s / 4))
     try:
+        _HEARTBEATS.add(path, me, interval=max(0.05, stale_s / 4))  # in the try: a Ctrl-C here releases it too
         yield True
     finally:
         _HEARTBEATS.remove(path)

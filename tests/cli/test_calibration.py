@@ -291,3 +291,55 @@ def test_an_interrupted_calibrate_leaves_no_empty_dataset_folder_and_runs_again(
     out.mkdir(parents=True)  # as a killed run (SIGKILL) leaves it
     assert main(["calibrate", str(root), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
     assert (out / "index.json").is_file()
+
+
+STOPPED_IN_THE_SOLVES = """
+import sys
+import time
+from pathlib import Path
+
+from nlipscalib import pipeline
+from nlipscalib.cli import main
+
+
+def solving(*args, **kwargs):  # the run's hold has made its output folder; nothing is written in it yet
+    Path(sys.argv[1]).touch()
+    time.sleep(120)
+
+
+pipeline.solve_presses = solving
+sys.exit(main(sys.argv[2:]))
+"""
+"""`nlips calibrate` whose solves wait, after saying so in a file (argv[1]): the point where SIGTERM found its
+dataset folder empty."""
+
+
+def test_a_calibrate_terminated_during_the_solves_leaves_no_empty_dataset_folder(session, tmp_path):
+    """SIGTERM (a scheduler's time limit, `kill PID`) of `nlips calibrate` during the solves left the calibration
+    folder it made for its hold, empty, which `nlips train` then took for a dataset ("index.json: missing"); Ctrl-C
+    already removed it. The handler ends the process at once (no `finally`), so it removes the folder itself."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root, _ = session
+    out = tmp_path / "new" / "calibration"
+    ready = tmp_path / "solving"
+    argv = [sys.executable, "-c", STOPPED_IN_THE_SOLVES, str(ready), "calibrate", str(root), "--out", str(out)]
+    proc = subprocess.Popen([*argv, "--workers", "1", "--no-progress"], stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert ready.exists(), proc.stderr.read() if proc.poll() is not None else "not solving after 60 s"
+        assert out.is_dir()  # held: made, with the hold's claim file alone in it
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "nlips calibrate: terminated" in err
+    assert not (tmp_path / "new").exists(), sorted(os.listdir(tmp_path / "new"))  # nor its missing parent

@@ -472,3 +472,88 @@ def test_a_ctrl_c_before_the_command_began_is_one_line_and_130(when):
     )
     assert run.stderr.splitlines() == ["nlips: interrupted before the command began; nothing was done"], run.stderr
     assert run.returncode == 130 and run.stdout == ""
+
+
+STOPPED_BEFORE_THE_FIRST_WRITE = """
+import importlib
+import sys
+import time
+from pathlib import Path
+
+from nlipscalib.cli import main
+
+ready, target, argv = sys.argv[1], sys.argv[2], sys.argv[3:]
+
+
+def working(*args, **kwargs):  # the command's work under way: its holds and probes made its folders, nothing written
+    Path(ready).touch()
+    time.sleep(120)
+
+
+module, name = target.rsplit(".", 1)
+setattr(importlib.import_module(module), name, working)
+sys.exit(main(argv))
+"""
+"""A command whose work (``target``, a dotted name) waits, after saying so in the file ``ready``."""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "ctrl-c"])
+@pytest.mark.parametrize(
+    "command, target",
+    [
+        ("calibrate-leds", "nlipscalib.solver.calibrate_leds"),
+        ("experiment", "nlipscalib.experiments.framework.run_experiment"),
+    ],
+)
+def test_a_command_stopped_before_its_first_write_leaves_no_folder_it_made(tmp_path, command, target, signum):
+    """Ctrl-C or SIGTERM of a command before its first write left the output folders its holds and probes had made,
+    empty (`nlips calibrate-leds REF --out new/leds.json`: new/; `nlips experiment q1 --out new`: new/q1-quick/ and
+    its report/; `nlips render`, `dataset`, `train` alike), which the next run took for work begun. SIGTERM's
+    handler ends the process at once, so it removes them itself (cli.folders.remove_all_left_empty)."""
+    import subprocess
+    import sys
+    import time
+
+    from tests.solver import synth
+
+    new = tmp_path / "new"
+    if command == "calibrate-leds":
+        synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+        argv = [command, str(tmp_path / "reference"), "--out", str(new / "leds" / "leds.json")]
+    else:
+        argv = [command, "q1", "--out", str(new / "work")]
+    ready = tmp_path / "working"
+    script = [sys.executable, "-c", STOPPED_BEFORE_THE_FIRST_WRITE, str(ready), target, *argv, "--no-progress"]
+    proc = subprocess.Popen(script, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not ready.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert ready.exists(), proc.stderr.read() if proc.poll() is not None else "not working after 60 s"
+        assert new.is_dir()  # made for the work (a claim's folder, a writability probe's)
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signum, err
+    assert not new.exists(), sorted(str(p.relative_to(new)) for p in new.rglob("*"))
+
+
+def test_ctrl_c_as_a_claim_is_taken_leaves_no_claim_file(tmp_path, monkeypatch):
+    """Ctrl-C just after a claim's file was linked, before the claim was taken (core.claims.claim), left the file:
+    a claim of this live process, which a later run in the same process waited on, and another took for a killed
+    run's (`nlips calibrate` and `nlips train` stopped at once left `.claim-calibration`, `.claim-m.pt~train`)."""
+    from nlipscalib.core import claims
+
+    linked = claims._create
+
+    def create_then_interrupted(path, me):
+        assert linked(path, me)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(claims, "_create", create_then_interrupted)
+    with pytest.raises(KeyboardInterrupt), claims.claim(tmp_path / "out"):
+        pass
+    assert list(tmp_path.iterdir()) == []
+    assert claims._HELD == {}
