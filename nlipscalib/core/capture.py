@@ -535,7 +535,11 @@ def _check_image(img: np.ndarray, shape: tuple[int, int], name: str) -> None:
 
 
 def _check_subset(subset: Sequence[int], n: int, folder: Path) -> list[int]:
-    subset = [int(i) for i in subset]
+    given = list(subset) if not isinstance(subset, (str, bytes)) and np.iterable(subset) else None
+    if given is None or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in given):
+        # a string gave "invalid literal for int()", and 1.5 was taken for LED 1 without a word
+        raise CaptureError(f"{folder}: LED subset must list LED indices (0-based integers), got {subset!r}")
+    subset = [int(i) for i in given]
     bad = [i for i in subset if not 0 <= i < n]
     twice = sorted({i + 1 for i in subset if subset.count(i) > 1})
     if bad or twice or not subset:

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import ShapeError
+from .errors import CaptureError, ShapeError
 
 if TYPE_CHECKING:  # names in hints only: importing them here would make an import cycle
     from .reconstruction import Reconstruction
@@ -150,7 +150,21 @@ def evaluate(result: Reconstruction, ground_truth: GroundTruth, mask: np.ndarray
     -------
     dict: {"all": ..., "contact": ...}, each {"pixels": int, "aae_deg": degrees, "mabse": unitless,
     "depth_rmse_mm": mm} (NaN figures where no pixel is scored).
+
+    Raises
+    ------
+    CaptureError -- ``ground_truth`` None: a real capture's ``press.ground_truth`` (only twin presses carry one).
+    ShapeError -- the result and the truth of other image sizes (or ``mask``).
     """
+    if ground_truth is None:  # it failed on "'NoneType' object has no attribute 'valid'"
+        raise CaptureError(
+            "evaluate: no ground truth (None): a real capture carries none (press.ground_truth is None); only twin "
+            "presses (nlips render, nlips dataset) are scored"
+        )
+    shape = ground_truth.valid.shape
+    for name, array in (("result", result.reconstructed), ("mask", mask)):
+        if array is not None and np.shape(array) != shape:
+            raise ShapeError(f"evaluate: {name} of a {np.shape(array)} image, the ground truth's is {shape} (H, W)")
     base = ground_truth.valid & result.reconstructed
     if mask is not None:
         base = base & mask

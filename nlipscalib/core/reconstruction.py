@@ -292,6 +292,8 @@ def save_reconstruction(
     extra_files : optional callable ``f(tmp_folder)`` that adds files (figures) before the folder is
         moved into place, so they appear together with the result or not at all. It runs on a thread of its
         own while the arrays are written (it must not write result.npz or report.json).
+
+    Returns the folder; raises FileExistsError (an OSError naming it) when it is there and not ``overwrite``.
     """
     from concurrent.futures import ThreadPoolExecutor
 

@@ -426,7 +426,7 @@ def build_dataset(
     -------
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
     another sensor (with ``failed``: only when every press is), ConfigError when another live build of other
-    samples holds ``out``.
+    samples holds ``out`` or ``press_folders`` is empty.
     """
     from ..core.capture import load_press
     from ..core.press_checksums import files_as_read
@@ -435,6 +435,8 @@ def build_dataset(
     cfg = cfg or SamplingConfig()
     out = Path(out)
     folders = [Path(f) for f in press_folders]
+    if not folders:  # a glob that matched nothing: it wrote a dataset of no sample, which train then refused
+        raise ConfigError(f"{out}: no press folders given (press_folders is empty): nothing to build the dataset from")
     run = run or dataset_run(folders, reference_folder, cfg, result_dir)
     with said_once.scope(), hold_dataset(out, run):  # a session's brightness warned of once per build
         (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)

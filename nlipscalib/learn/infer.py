@@ -251,6 +251,13 @@ class Predictor:
         in_light : ``image`` has the calibration's tone curve undone already (converted with :attr:`tone_curve`:
             ``device.camera.to_stored``, an 8-bit frame's in one 256-entry lookup)
         """
+        if getattr(image, "dtype", None) != np.uint16:
+            # an 8-bit frame was read as 16-bit values (1/256 of its light), a linear one as stored: no error
+            got = getattr(image, "dtype", None) or f"a {type(image).__name__}, not an array"
+            raise ShapeError(
+                f"{where}: {got} values, not the stored frame's (H, W, 3) uint16 (an 8-bit camera frame: "
+                "device.camera.to_stored(frame); a linear float frame: predict(frame))"
+            )
         if image.shape != self.shape + (3,):
             h, w = self.shape
             raise CaptureError(
@@ -287,9 +294,21 @@ class Predictor:
         Parameters
         ----------
         tricolor : (H, W, 3) float32, linear (``Press.linear(press.tricolor)`` or :meth:`linear`)
+
+        Raises
+        ------
+        ShapeError -- another shape, or not a float array: a stored frame (uint16, a camera's or a PNG's) is
+            :meth:`predict_stored`'s (it was taken for light 65535x full scale, and gave normals without a word)
         """
-        if tricolor.shape != self.shape + (3,):
-            raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
+        shape = getattr(tricolor, "shape", None)
+        if shape != self.shape + (3,):
+            got = shape if shape is not None else f"a {type(tricolor).__name__}, not an array"
+            raise ShapeError(f"tri-colour frame is {got}, the model expects {self.shape + (3,)}")
+        if tricolor.dtype.kind != "f":
+            raise ShapeError(
+                f"tri-colour frame is {tricolor.dtype}: predict takes the linear frame (float32, 1 = full scale); "
+                "give a stored frame (uint16, as a camera or a tri-colour PNG gives it) to predict_stored"
+            )
         if self._full is not None:  # the gain (:meth:`refresh`) is applied on the device
             return self._whole_frame(tricolor, stored=False)
         if self.gain is not None:  # an aged sensor's frame, in the calibration's light (:meth:`refresh`)

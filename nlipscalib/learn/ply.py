@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +41,11 @@ def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None =
     normals : (H, W, 3) float, unit, or None
     mesh : also write the grid triangles (:func:`grid_faces`) between neighbouring points
     """
-    if points.ndim != 3 or points.shape[-1] != 3 or (normals is not None and normals.shape != points.shape):
-        raise ShapeError(f"write_ply needs (H, W, 3) points (and normals), got {points.shape}")
+    shapes = f"points {np.shape(points)}" + ("" if normals is None else f", normals {np.shape(normals)}")
+    if np.ndim(points) != 3 or np.shape(points)[-1] != 3 or (normals is not None and normals.shape != points.shape):
+        raise ShapeError(f"write_ply needs (H, W, 3) points (and normals of their shape), got {shapes}")
+    if Path(path).is_dir():  # the write's own error named its temporary file
+        raise IsADirectoryError(errno.EISDIR, "a folder; give the path of the .ply file to write", str(path))
     valid = np.all(np.isfinite(points), -1)
     keep = np.flatnonzero(valid)
     cols = [points.reshape(-1, 3)[keep].astype(np.float32)]

@@ -127,6 +127,8 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
+    if kwargs.get("leds") is not None:
+        kwargs["leds"] = _given_leds(press, kwargs["leds"])
     if not isinstance(kwargs.get("indirect"), Press):  # against an undeformed capture they may go unused
         _rays_ahead(press)
     # One BLAS thread throughout, not only inside the NLiPs solves: the LED checks' np.corrcoef of (24, 2008)
@@ -134,6 +136,26 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     # other core waited (benchmarks/RESULTS.md, s30-lastpass2; core.blas.blas_threads' why).
     with blas_threads(1):
         return _checked_solve(press, kwargs)
+
+
+def _given_leds(press: Press, leds: Any) -> tuple[Led, ...]:
+    """``leds`` (:func:`_solve_press`'s) as a tuple of Led, one per LED image of ``press``; ShapeError for anything
+    else, CaptureError for another count. Why: a list of numbers or an LED file's path failed deep inside the LED
+    checks ("tuple index out of range") before the solve's own count check was reached."""
+    if isinstance(leds, (str, os.PathLike)):
+        raise ShapeError(
+            f"leds: {os.fspath(leds)!r} is a path; give the LEDs themselves: "
+            "nlipscalib.core.ledfile.read_led_file(path).leds (an LED file of `nlips calibrate-leds`)"
+        )
+    given = tuple(leds) if isinstance(leds, (Sequence, np.ndarray)) else None
+    if given is None or not all(isinstance(led, Led) for led in given):
+        what = type(leds).__name__ if given is None else f"a {type(leds).__name__} of {type(given[0]).__name__}"
+        raise ShapeError(
+            f"leds must be a sequence of Led (read_led_file(path).leds, calibrate_leds(reference).leds), got {what}"
+        )
+    if len(given) != len(press.leds):
+        raise CaptureError(f"{press.folder}: {len(given)} LEDs given for {len(press.leds)} LED images")
+    return given
 
 
 def _rays_ahead(press: Press) -> None:

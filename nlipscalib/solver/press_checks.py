@@ -96,7 +96,10 @@ def _other_sensor(press: Press | CaptureOptics, undeformed: Press | CaptureOptic
 
 def check_roi(roi: Sequence[int], W: int, H: int) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
-    x0, y0, w, h = (int(v) for v in roi)
+    try:
+        x0, y0, w, h = (int(v) for v in roi)
+    except (TypeError, ValueError):  # another count, or not numbers: "not enough values to unpack" from deep inside
+        raise ShapeError(f"roi must be (x0, y0, w, h) pixels, 'auto' or None, got {roi!r}") from None
     if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
         side = MIN_ROI_SIDE
         raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least {side}x{side} pixels")

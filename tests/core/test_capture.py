@@ -675,3 +675,15 @@ def test_led_gains_rescale_each_led_image_above_the_dark_frame_and_keep_saturate
     assert scaled.saturated_led_images[0, 0, 0].all()
     assert scaled.leds is press.leds and scaled.reference is press.reference
     assert scaled.images_digest() != press.images_digest()
+
+
+def test_an_led_subset_of_anything_but_led_indices_is_one_clear_error(tmp_path):
+    """`load_press(folder, led_subset="0,2")` failed on "invalid literal for int() with base 10: ','", and
+    `led_subset=[1.5]` loaded LED 2 (index 1) without a word."""
+    from nlipscalib.core.errors import CaptureError
+
+    folder = _press(tmp_path / "p1")
+    for subset in ("0,2", [1.5], [True, 2], 3):
+        with pytest.raises(CaptureError, match=r"LED subset must list LED indices \(0-based integers\), got"):
+            load_press(folder, led_subset=subset)
+    assert len(load_press(folder, led_subset=np.array([0, 2])).leds) == 2  # NumPy's integers are indices too

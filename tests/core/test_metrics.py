@@ -58,3 +58,19 @@ def test_angle_ignores_lengths_and_is_nan_without_a_direction():
     assert aae(a, b, np.array([True, True, False, True, True])) == pytest.approx(22.5)  # non-finite pixels skipped
     with pytest.raises(ShapeError):
         angle_deg(np.zeros((2, 3)), np.zeros((2, 2)))
+
+
+def test_evaluate_without_ground_truth_or_of_another_size_is_one_clear_error():
+    """`evaluate(rec, press.ground_truth)` of a real capture (no ground truth: None) failed on "'NoneType' object has
+    no attribute 'valid'"; a result of another image size on NumPy's broadcasting error."""
+    from types import SimpleNamespace
+
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.metrics import evaluate
+
+    result = SimpleNamespace(normals=np.zeros((4, 5, 3)), depth=np.zeros((4, 5)), reconstructed=np.ones((4, 5), bool))
+    with pytest.raises(CaptureError, match=r"no ground truth \(None\): a real capture carries none"):
+        evaluate(result, None)
+    truth = SimpleNamespace(valid=np.ones((6, 5), bool), contact=np.zeros((6, 5), bool))
+    with pytest.raises(ShapeError, match=r"result of a \(4, 5\) image, the ground truth's is \(6, 5\)"):
+        evaluate(result, truth)

@@ -339,3 +339,16 @@ def test_presses_dimmer_than_the_undeformed_capture_keep_their_contact_samples(t
     assert np.allclose(brightness, 1.0, atol=0.01), brightness
     said = [r for r in caplog.records if "tri-colour frame is red 0.90" in r.getMessage()]
     assert len(said) == 1 and said[0].levelno == logging.WARNING, said
+
+
+def test_building_from_no_press_is_one_clear_error_and_writes_nothing(tmp_path):
+    """`build_dataset(sorted(root.glob("press_*")), ...)` whose glob matched nothing wrote a dataset of no sample
+    (index.json, sensor.npz), exit 0, which `train` then refused."""
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.learn.dataset import build_dataset
+    from tests.solver import synth
+
+    synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+    with pytest.raises(ConfigError, match="no press folders given"):
+        build_dataset([], tmp_path / "reference", tmp_path / "calib", progress=False)
+    assert not (tmp_path / "calib").exists()

@@ -1542,3 +1542,23 @@ def test_frames_results_are_refused_a_folder_a_stream_saves_into_also_when_only_
     assert not out.exists()
     assert main([*command, "--full-frame"]) == 0
     assert len(list(out.rglob("report.json"))) == 4
+
+
+def test_a_frame_of_another_kind_than_predict_or_predict_stored_takes_is_one_clear_error(tiny_model):
+    """A stored uint16 frame given to `predict` (a camera's `read()`) was taken for light up to 65535x full scale,
+    and a linear float or an 8-bit frame given to `predict_stored` for 16-bit stored values: normals either way,
+    without a word. Now ShapeError naming the other method."""
+    from nlipscalib.core.errors import ShapeError
+    from nlipscalib.learn.infer import Predictor
+
+    model, _ = tiny_model
+    predictor = Predictor(model, depth=False)
+    H, W = predictor.shape
+    with pytest.raises(ShapeError, match="tri-colour frame is uint16: predict takes the linear frame .*predict_stored"):
+        predictor.predict(np.zeros((H, W, 3), np.uint16))
+    with pytest.raises(ShapeError, match="tri-colour frame is a list, not an array"):
+        predictor.predict([[0.0]])
+    for dtype in (np.float32, np.uint8):
+        with pytest.raises(ShapeError, match=f"frame: {np.dtype(dtype)} values, not the stored frame's"):
+            predictor.predict_stored(np.zeros((H, W, 3), dtype))
+    assert predictor.predict(np.zeros((H, W, 3), np.float64)).normals.shape == (H, W, 3)  # any float: light

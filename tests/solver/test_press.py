@@ -181,3 +181,23 @@ def test_the_whole_images_rays_are_made_once_on_a_thread_of_their_own(folders, m
         threads.set_workers(before)
     assert [name for shape, name in made if shape == loaded.camera.shape] == ["camera-rays"]
     assert "rays" in vars(loaded.camera) and "rays" not in vars(against.camera)
+
+
+def test_leds_or_a_box_of_another_kind_are_one_clear_error_before_any_check(folders):
+    """`leds=` given as numbers, an array or an LED file's path, and a box of three numbers, failed deep inside the
+    LED checks ("tuple index out of range") or the box's unpacking ("not enough values to unpack")."""
+    from nlipscalib.core.leds import Led
+
+    press, _ = folders
+    with pytest.raises(ShapeError, match=r"leds must be a sequence of Led .* got a list of int"):
+        solve_press(press, leds=[1, 2, 3])
+    with pytest.raises(ShapeError, match=r"leds must be a sequence of Led .* got a ndarray of ndarray"):
+        solve_press(press, leds=np.zeros((12, 3)))
+    with pytest.raises(ShapeError, match=r"leds: 'leds.json' is a path; .*read_led_file\(path\).leds"):
+        solve_press(press, leds="leds.json")
+    loaded = load_press(press)
+    with pytest.raises(CaptureError, match=f"{len(loaded.leds) - 1} LEDs given for {len(loaded.leds)} LED images"):
+        solve_press(loaded, leds=loaded.leds[1:])
+    assert all(isinstance(led, Led) for led in loaded.leds)
+    with pytest.raises(ShapeError, match=r"roi must be \(x0, y0, w, h\) pixels, 'auto' or None, got \(0, 0, 10\)"):
+        solve_press(press, roi=(0, 0, 10))
