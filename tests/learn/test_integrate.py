@@ -645,3 +645,20 @@ def test_amg_hierarchies_shared_by_threads_give_the_single_thread_depths(monkeyp
         for i, depth in enumerate(depths):
             np.testing.assert_array_equal(depth, alone[i % 2])
         assert len(cache) == 2
+
+
+@pytest.mark.parametrize("method", ["auto", "box", "sparse"])
+def test_normals_missing_around_the_pixels_to_solve_are_one_clear_error(method):
+    """A Reconstruction's normals (NaN outside its reconstructed pixels) integrated as they are came back as a depth of
+    NaN on every solved pixel, without a word (the docstring asked for normals finite "where unknown" only); the
+    reference's normals filled in there give the depth. An `unknown` of numbers failed inside NumPy."""
+    from nlipscalib.core.errors import ShapeError
+
+    ref, geo, on_gel, contact, normals = _dome_and_sphere()
+    solved = np.where(contact[..., None], normals, np.nan)
+    with pytest.raises(ShapeError, match="normals are not finite around the pixels to solve"):
+        integrate_on_dome(solved, contact, geo, method)
+    filled, _ = integrate_on_dome(np.where(contact[..., None], normals, ref.normals), contact, geo, method)
+    assert np.isfinite(filled[contact]).all()
+    with pytest.raises(ShapeError, match="unknown must be an \\(H, W\\) bool array, got float64"):
+        integrate_on_dome(normals, contact.astype(float), geo, method)
