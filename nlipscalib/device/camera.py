@@ -91,6 +91,8 @@ class CameraSettings:
                 f"camera settings need buffer_size >= 1, flush_frames >= 0, average >= 1; got "
                 f"{self.buffer_size}, {self.flush_frames}, {self.average}"
             )
+        if self.exposure_ms is not None and not self.exposure_ms > 0:  # also NaN: it went to the driver as it was
+            raise ConfigError(f"camera settings need exposure_ms > 0 (or None: the camera's), got {self.exposure_ms}")
 
 
 class FrameSource:
@@ -571,7 +573,9 @@ def open_source(
     tone_curve: np.ndarray | None = None,
 ) -> FrameSource:
     """Frame source from a command-line spec: a camera index ("0"), a device path, a folder, a video file
-    or an image sequence pattern ("frames/img_%04d.png"). ``reported``: refusals of a live camera not to be said
+    or an image sequence pattern ("frames/img_%04d.png"). ``settings``: what a camera is asked for (exposure,
+    gain, white balance, gamma; None: :class:`CameraSettings`' defaults), of which a folder or sequence uses
+    ``average`` alone; ``reported``: refusals of a live camera not to be said
     again (:func:`report_refusals`); ``tone_curve``: undone on every frame (:attr:`FrameSource.tone_curve`)."""
     settings = settings or CameraSettings()
     if isinstance(spec, int) or str(spec).isdigit():

@@ -416,6 +416,7 @@ def build_dataset(
     out : dataset folder to write (created; existing shards made from the same reconstruction are kept)
     cfg : SamplingConfig
     result_dir : reconstruction folder name inside each press
+    progress : the presses' bar on stderr, drawn only on a terminal or in a notebook (:mod:`nlipscalib.progress`)
     run : :func:`dataset_run` the caller holds ``out`` for (``nlips calibrate``: from before its solves, with its
         solve options); None: this build's own. The build holds ``out`` for it (:func:`hold_dataset`)
     failed : where a press that cannot be sampled (a damaged tri-colour image, another sensor: a CaptureError) is

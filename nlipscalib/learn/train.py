@@ -266,6 +266,7 @@ def train(
         round, and more: dropout's masks come from the device's generator (CUDA's Philox, not the CPU's Mersenne
         Twister), so a GPU run is another draw of the same training, its validation AAE alike but not its bits.
         Each epoch's device is in the history (``"device"``: "cpu" or "cuda"); a resume on another says so.
+    progress : the epochs' bar on stderr, drawn only on a terminal or in a notebook (:mod:`nlipscalib.progress`)
     """
     dev = check_device(device)
     if isinstance(dataset, (str, os.PathLike)):

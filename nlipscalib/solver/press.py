@@ -104,7 +104,7 @@ __all__ = ["FILL_ROWS", "REFIT_ALTERNATIONS", "UPDATE_ROWS", "led_channel_sum", 
 
 
 def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
-    """Solve one press; see :func:`_solve_press` for the parameters (the same keywords), and ``leds_name``: where
+    """Solve one press; the parameters are :func:`_solve_press`'s (below), and ``leds_name``: where
     ``leds`` came from (an LED file's path), named when the checks find them the exchanged ones (None: "the LEDs
     given (--leds)").
 
@@ -937,3 +937,6 @@ def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | 
 
 # inspect.signature(solve_press) shows _solve_press's keywords (the pipeline records them with their defaults)
 solve_press.__wrapped__ = _solve_press
+if solve_press.__doc__ and _solve_press.__doc__:  # None under python -OO
+    # help(solve_press) (a notebook's Shift-Tab) describes them too: it said "see _solve_press", a private name
+    solve_press.__doc__ += "\n" + _solve_press.__doc__[_solve_press.__doc__.index("    Parameters\n") :]

@@ -392,3 +392,15 @@ def test_an_eight_bit_frames_curve_is_undone_in_one_lookup_bit_for_bit():
     for shape in ((6, 8, 1), (6, 8, 2), (6,)):  # refused as before (OpenCV's grey is (H, W))
         with pytest.raises(CaptureError, match=r"unsupported image shape"):
             to_stored(np.zeros(shape, np.uint8), tone_curve=table)
+
+
+@pytest.mark.parametrize("exposure_ms", [0.0, -1.0, float("nan")])
+def test_camera_settings_refuse_an_exposure_that_is_not_positive(exposure_ms):
+    """`CameraSettings(exposure_ms=-1)` was taken and sent to the camera's driver as it was (the commands check their
+    option; a script's settings were not)."""
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.device.camera import CameraSettings
+
+    with pytest.raises(ConfigError, match="camera settings need exposure_ms > 0"):
+        CameraSettings(exposure_ms=exposure_ms)
+    assert CameraSettings(exposure_ms=None).exposure_ms is None  # the camera's own

@@ -201,3 +201,14 @@ def test_leds_or_a_box_of_another_kind_are_one_clear_error_before_any_check(fold
     assert all(isinstance(led, Led) for led in loaded.leds)
     with pytest.raises(ShapeError, match=r"roi must be \(x0, y0, w, h\) pixels, 'auto' or None, got \(0, 0, 10\)"):
         solve_press(press, roi=(0, 0, 10))
+
+
+def test_help_of_solve_press_describes_every_keyword_it_takes():
+    """help(solve_press) (a notebook's Shift-Tab) showed _solve_press's signature but said only "see _solve_press for
+    the parameters", a private name: every keyword is described in its own help now."""
+    import inspect
+    import re
+
+    entries = re.findall(r"^(\w+(?:, \w+)*) :", inspect.getdoc(solve_press), re.M)  # "options, backend : ..."
+    described = {name for entry in entries for name in entry.split(", ")}
+    assert set(inspect.signature(solve_press).parameters) - described == set()
