@@ -37,7 +37,10 @@ def _solve_in_processes(
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
+    from ..core.main_guard import check_main_guarded
     from ..progress import progress_bar, worker_logging
+
+    check_main_guarded(f"solving presses in {workers} processes (workers={workers})")
 
     # forkserver: workers start from a clean process with the solver imported once, not from a fork of
     # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS; SciPy's

@@ -29,6 +29,7 @@ from ..core.atomic import check_free_space, check_writable, clean_interrupted
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
 from ..core.errors import ConfigError, NlipsError
+from ..core.main_guard import check_main_guarded
 from ..core.press_folders import is_press_folder
 from ..core.press_meta import META_FILE
 from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
@@ -126,6 +127,7 @@ def run_dataset(
         if workers == 1:
             _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s, verify), result, bar)
         else:
+            check_main_guarded(f"rendering presses in {workers} processes (workers={workers})")
             with ProcessPoolExecutor(
                 workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
             ) as pool:
