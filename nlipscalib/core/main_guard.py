@@ -30,7 +30,8 @@ def check_main_guarded(what: str) -> None:
         tree = ast.parse(Path(path).read_text(encoding="utf-8"))
     except (OSError, SyntaxError, ValueError):  # the script's file is gone or changed: no verdict
         return
-    if not any(_guards(node) and node.lineno <= top.f_lineno <= (node.end_lineno or 0) for node in tree.body):
+    # any guard holding the line: also one inside a top-level block (a `with`, a `try`)
+    if not any(_guards(node) and node.lineno <= top.f_lineno <= (node.end_lineno or 0) for node in ast.walk(tree)):
         raise ConfigError(
             f"{path}, line {top.f_lineno}: {what} at the script's top level: its worker processes import the script "
             'again and would run it too; call it under `if __name__ == "__main__":` (or with workers=1)'

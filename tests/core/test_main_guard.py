@@ -19,8 +19,9 @@ def _run_script(tmp_path, text: str) -> subprocess.CompletedProcess:
     [
         'import sys\nif __name__ == "__main__":\n    ' + CALL.replace("\n", "\n    "),
         "def main():\n    " + CALL.replace("\n", "\n    ") + '\n\nif "__main__" == __name__:\n    main()\n',
+        'try:\n    if __name__ == "__main__":\n        ' + CALL.replace("\n", "\n        ") + "\nfinally:\n    pass\n",
     ],
-    ids=["guarded", "a function called under the guard"],
+    ids=["guarded", "a function called under the guard", "a guard inside a top-level block"],
 )
 def test_a_call_under_the_main_guard_passes(tmp_path, text):
     done = _run_script(tmp_path, text)
