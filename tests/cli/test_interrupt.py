@@ -503,6 +503,7 @@ sys.exit(main(argv))
     [
         ("calibrate-leds", "nlipscalib.solver.calibrate_leds"),
         ("experiment", "nlipscalib.experiments.framework.run_experiment"),
+        ("render", "nlipscalib.sim.press.render_press"),
     ],
 )
 def test_a_command_stopped_before_its_first_write_leaves_no_folder_it_made(tmp_path, command, target, signum):
@@ -520,6 +521,8 @@ def test_a_command_stopped_before_its_first_write_leaves_no_folder_it_made(tmp_p
     if command == "calibrate-leds":
         synth.make_press(tmp_path / "reference", "none", size=(64, 48))
         argv = [command, str(tmp_path / "reference"), "--out", str(new / "leds" / "leds.json")]
+    elif command == "render":
+        argv = [command, "--width", "64", "--height", "48", "--out", str(new / "twin" / "press")]
     else:
         argv = [command, "q1", "--out", str(new / "work")]
     ready = tmp_path / "working"
