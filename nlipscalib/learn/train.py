@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import functools
 import logging
 import math
@@ -268,6 +269,8 @@ def train(
         Each epoch's device is in the history (``"device"``: "cpu" or "cuda"); a resume on another says so.
     progress : the epochs' bar on stderr, drawn only on a terminal or in a notebook (:mod:`nlipscalib.progress`)
     """
+    if Path(out).is_dir():  # the whole training ran, then its model's write failed naming a temporary file
+        raise IsADirectoryError(errno.EISDIR, "a folder; give the path of the model file to write (.pt)", str(out))
     dev = check_device(device)
     if isinstance(dataset, (str, os.PathLike)):
         dataset = CalibrationDataset(dataset)

@@ -874,3 +874,16 @@ def test_each_epoch_is_a_line_of_the_log_file(built, tmp_path):
     epochs = [line for line in log.read_text(encoding="utf-8").splitlines() if ": epoch " in line]
     assert [line.split(": epoch ")[1].split(":")[0] for line in epochs] == ["1 of at most 2", "2 of at most 2"]
     assert all("validation AAE" in line and "INFO nlipscalib.learn.train" in line for line in epochs), epochs
+
+
+def test_a_folder_given_for_the_model_file_is_refused_before_training(tmp_path):
+    """`train(dataset, cfg, "out/api")` with a folder trained every epoch, then failed naming its temporary file
+    ("out/.tmp-api~host~pid~... -> out/api": Is a directory)."""
+    import errno
+
+    from nlipscalib.learn.train import train
+
+    with pytest.raises(IsADirectoryError, match=r"a folder; give the path of the model file") as raised:
+        train(tmp_path / "no dataset here", TINY, tmp_path, progress=False)  # refused before the dataset is read
+    assert raised.value.errno == errno.EISDIR and raised.value.filename == str(tmp_path)
+    assert list(tmp_path.iterdir()) == []
