@@ -21,6 +21,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError
+from ..core.lag_blind import say_lag_blind
 from ..core.leds import TRICOLOR_NAMES, Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
@@ -637,11 +638,14 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     """The line naming LED images that repeat the image before them (:func:`.frame_checks`: frames that lag the LED
     switch), none when none does, those LEDs (0-based), in the capture order of ``images.leds``; the LED images
     read out across the switch by a rolling shutter, in part the previous LED's light (:func:`.lagged_bands`); and
-    the rows dark in every LED image (None: none)."""
+    the rows dark in every LED image (None: none). The LED pairs a lag between which the check cannot see (LEDs in
+    close pairs) said once per command (:func:`.say_lag_blind`; report.json ``lag_blind_pairs``)."""
     from .exposure import expected_light_of
 
     gel = np.isfinite(press.reference.depth)
-    repeated, bands, everywhere = frame_checks(press.linear_led_images, gel, expected_light_of(press))
+    expected = expected_light_of(press)
+    repeated, bands, everywhere = frame_checks(press.linear_led_images, gel, expected)
+    say_lag_blind(press.folder, expected, gel)
     lines = [repeated_line(press.folder, names, repeated)] if repeated else []
     return lines, sorted(i for i, _ in repeated), bands, everywhere
 
