@@ -183,11 +183,11 @@ def half_dark_bands(
         live = [i for i in _own_light(p) if i not in {band.index for band in bands}]
         plain = {band.index for band in dark_rows(p, leds, live)}
         half = [band for band in dark_rows(p, leds, live, mostly_dark=True) if band.index not in plain]
-        out.append(tuple(band for band in half if _at_dark_level(p, band)))
+        out.append(tuple(band for band in half if at_dark_level(p, band)))
     return tuple(out)
 
 
-def _at_dark_level(press: Press, band: DarkBand) -> bool:
+def at_dark_level(press: Press, band: DarkBand) -> bool:
     """Whether ``band``'s gel pixels hold the dark frame's level in its LED's image: their median light (linear, the
     channels' mean) at most :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE` times the image's noise
     (:func:`.image_stats.image_noise`, at least one ADC step: a noise-free capture)."""

@@ -178,6 +178,7 @@ def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
+    dark += _half_dark_rows(press, leds, image, model, pixels, live, everywhere, dark)
     judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
     relative = _relative_gains(image, model, judged)
@@ -427,6 +428,46 @@ def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int], mostly_dar
         return []
     image, model, pixels = _sampled(press, leds, live)
     return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None, mostly_dark)
+
+
+def _half_dark_rows(
+    press: Press,
+    leds: Sequence[Led],
+    image: np.ndarray,
+    model: np.ndarray,
+    pixels: np.ndarray,
+    live: list[int],
+    everywhere: DarkBand | None,
+    found: list[DarkBand],
+) -> list[DarkBand]:
+    """The bands over more than half an LED's image at the dark frame's level (:func:`_dark_rows` with
+    ``mostly_dark``, each band's light at most :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE` times the image's
+    noise: :func:`.calibration_bands.at_dark_level`) of the LEDs without a band ``found`` whose light over the model
+    is dark at more than about half their samples (as :func:`.repeated_frames.lit_level` tells); none otherwise, at
+    the cost of a median and a quantile.
+
+    Why: over half dark, a band puts the LED's median light at the dark frame's noise, and every ratio to it says
+    lit: the twin-like exact press's led_05.png dark over 55-80 % of its rows was called "weak LED? (0.00 times the
+    light the LED model expects)" and left out whole, over 55-80 % of its columns "does not show that LED's light
+    (correlation -0.22 with its model, 0.72 with LED 2's): check the wiring" and solved with its dark columns
+    (s36-lagcost; s35-leftovers' "bands over half the frame are not found as bands"). The noise test keeps an LED
+    far from its design, whose light ends at its own terminator over as much but holds the indirect light there,
+    from being called dark (s31-ledfar, :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE`)."""
+    from ..core.repeated_frames import LIT_QUANTILE
+    from .calibration_bands import at_dark_level
+
+    light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
+    top = np.quantile(light, LIT_QUANTILE, axis=1)
+    banded = {band.index for band in found}
+    dim = {
+        live[k]
+        for k in np.flatnonzero((np.median(light, axis=1) < tolerances.DARK_BAND_LIGHT * top) & (top > 0))
+        if live[k] not in banded
+    }
+    if not dim:
+        return []
+    half = _dark_rows(press, leds, image, model, pixels, live, everywhere, mostly_dark=True)
+    return [band for band in half if band.index in dim and at_dark_level(press, band)]
 
 
 DENSE_LINE_SAMPLES = 100
