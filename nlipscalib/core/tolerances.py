@@ -626,7 +626,8 @@ HALF_DARK_NOISE = 3.0
 (linear, the channels' mean) is at most this many times its image's noise: the dark frame's level. Why: against the
 converged LEDs of s31-ledfar's twin (LEDs 3 mm / 25 deg off their design, one bounce, 160x120) LEDs 4 and 5 came out
 "dark" in columns 75-159 / 0-114 at the light-ratio test alone while their light there was 51 / 40 times the noise; a
-band read while the LED was off holds the dark frame's noise (median about 0) (s32-ledleft)."""
+band read while the LED was off holds the dark frame's noise (median about 0) (s32-ledleft). The solve's LED check
+asks the same of such a band (:func:`nlipscalib.solver.led_checks._half_dark_rows`, s36-lagcost)."""
 DARK_BAND_ROWS = 3
 """Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (columns) in a run, 15 pixels, for an LED image's rows (or every
 LED image's) to be called dark at the bands' test: read while no LED was lit; shorter runs are looked at row by row
