@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import said_once
-from .repeated_frames import MIN_LIT_ROW_BLOCKS, Lines, ModelLight, _block_means, _median_at_least, model_blocks
+from .repeated_frames import MIN_LIT_ROW_BLOCKS, Lines, ModelLight, gel_blocks, median_at_least, model_blocks
 from .tolerances import LAG_BLIND_SHARE, LAGGED_BAND_CONTRAST, LAGGED_BAND_ROWS
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ def lag_blind_pairs(expected: object, gel: np.ndarray) -> list[BlindPair]:
     """
     if not isinstance(expected, ModelLight) or len(expected.leds) < 2:
         return []
-    inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6
+    inside = gel_blocks(gel)
     model = model_blocks(expected, inside)
     if model.blind is None:
         positions = np.array([led.position for led in expected.leds], float)
@@ -90,7 +90,7 @@ def _unseen(contrast: np.ndarray, inside: np.ndarray) -> float:
     total = int(counted.sum())
     if total <= LAGGED_BAND_ROWS:
         return 0.0
-    tells = _median_at_least(contrast, lines, counted, LAGGED_BAND_CONTRAST)
+    tells = median_at_least(contrast, lines, counted, LAGGED_BAND_CONTRAST)
     reach = 0
     for order in (tells, tells[::-1]):
         at = np.flatnonzero(order)

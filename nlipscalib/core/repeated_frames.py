@@ -17,7 +17,10 @@ degrees: its rolling shutter reads the columns; the same test on the transposed 
 Where the capture's LED model is given (:class:`ModelLight`: its design's LEDs, or the solve's), a line counts only
 where the model's lights of the two LEDs differ: LEDs designed in close pairs (0.5-1.2 mm apart) light the gel far
 from the pair within 1 % of each other, which the images alone took for the previous LED's light (every clean
-capture of such designs warned, s35-pairband).
+capture of such designs warned, s35-pairband). The model's light at the blocks is kept per design in the process
+(:func:`model_blocks`), and each line's median is only compared with a threshold, by counts
+(:func:`median_at_least`: the same verdicts, a sort only on a tie; s36-lagcost). The consecutive LEDs a lag between
+which the model leaves unseen over much of the gel are named once: :mod:`nlipscalib.core.lag_blind`.
 
 Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED was lit (the LED switched on late, or
 off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
@@ -33,6 +36,7 @@ degrees: its rolling shutter reads the image's columns); bands shorter than the 
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import NamedTuple
@@ -210,10 +214,11 @@ def frame_checks(
     dark : DarkBand or None -- rows dark in every LED image (:func:`dark_everywhere`; shorter bands:
         :func:`dark_everywhere_lines`).
     """
-    inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6  # blocks wholly on the gel (rounding)
+    inside = gel_blocks(gel)
     blocks = [_block_means(image) for image in linear]
     # each LED's modelled light tells lines where two LEDs light the gel alike by design (LEDs in close pairs,
-    # s35-pairband) from the previous light repeated (~2 ms at 160x120, ~6 ms at 640x480)
+    # s35-pairband) from the previous light repeated; kept per design in the process (~5 ms the first time at
+    # 640x480, ~0.3 ms a later check's key)
     model = (
         model_blocks(expected, inside)
         if isinstance(expected, ModelLight) and len(expected.leds) == len(blocks)
@@ -596,7 +601,7 @@ class ModelBlocks:
     def __init__(self, light: np.ndarray) -> None:
         self.light = light
         self.finite = bool(np.isfinite(light).all())
-        """Whether every LED's light is finite (else :func:`_median_at_least` looks for NaN lines)."""
+        """Whether every LED's light is finite (else :func:`median_at_least` looks for NaN lines)."""
         self._contrast: dict[tuple[int, int], np.ndarray] = {}
         self._alike: dict[tuple[int, int], np.ndarray] = {}
         self.blind: list | None = None
@@ -616,7 +621,7 @@ class ModelBlocks:
 
     def alike(self, one: int, other: int) -> np.ndarray:
         """(h, w) bool, read-only: :meth:`contrast` under :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST`
-        (what :func:`_median_at_least` counts); made once per pair."""
+        (what :func:`median_at_least` counts); made once per pair."""
         key = (min(one, other), max(one, other))
         if key not in self._alike:
             value = self.contrast(one, other) < LAGGED_BAND_CONTRAST
@@ -630,6 +635,8 @@ MODEL_BLOCKS_KEPT = 2
 press and its undeformed capture, ``nlips calibrate-leds`` each capture twice (its bands, its dark rows), a
 calibration's presses one sensor; a second kept for runs that alternate."""
 _MODEL_BLOCKS: OrderedDict[tuple, ModelBlocks] = OrderedDict()
+_MODEL_BLOCKS_LOCK = threading.Lock()
+"""Guards :data:`_MODEL_BLOCKS` (a solve's threads, a dataset build's, may check captures at once)."""
 
 
 def model_blocks(model: ModelLight, inside: np.ndarray) -> ModelBlocks:
@@ -647,16 +654,19 @@ def model_blocks(model: ModelLight, inside: np.ndarray) -> ModelBlocks:
         inside.shape,
         digest(np.packbits(inside), model.depth[rows, cols], model.normals[rows, cols]),
     )
-    if (hit := _MODEL_BLOCKS.get(key)) is not None:
-        _MODEL_BLOCKS.move_to_end(key)
-        return hit
+    with _MODEL_BLOCKS_LOCK:
+        if (hit := _MODEL_BLOCKS.get(key)) is not None:
+            _MODEL_BLOCKS.move_to_end(key)
+            return hit
     light = np.zeros((len(model.leds), *inside.shape))
     if rows.size:
         light[:, rows // b, cols // b] = model.each(rows, cols)
     light.flags.writeable = False
-    found = _MODEL_BLOCKS[key] = ModelBlocks(light)
-    while len(_MODEL_BLOCKS) > MODEL_BLOCKS_KEPT:
-        _MODEL_BLOCKS.popitem(last=False)
+    found = ModelBlocks(light)
+    with _MODEL_BLOCKS_LOCK:
+        _MODEL_BLOCKS[key] = found
+        while len(_MODEL_BLOCKS) > MODEL_BLOCKS_KEPT:
+            _MODEL_BLOCKS.popitem(last=False)
     return found
 
 
@@ -689,7 +699,7 @@ def lagged_bands(
     """
     if isinstance(model, np.ndarray):
         model = ModelBlocks(model)
-    finite = all(np.isfinite(image).all() for image in blocks)  # no NaN line for _median_at_least to look for
+    finite = all(np.isfinite(image).all() for image in blocks)  # no NaN line for median_at_least to look for
     bands = []
     for index in range(1, len(blocks)):
         current, neighbour = blocks[index], blocks[index - 1]
@@ -820,7 +830,7 @@ def _lagged_lines(
     for side in sides or []:
         counted[counted] = _side_tells(side, neighbour, lines, counted, finite)
     if model is not None:
-        counted[counted] = _median_at_least(
+        counted[counted] = median_at_least(
             model.contrast, lines, counted, LAGGED_BAND_CONTRAST, model.alike, model.finite
         )
     rows = np.flatnonzero(counted)
@@ -830,7 +840,7 @@ def _lagged_lines(
     # 1: the previous LED's light, 0: the image's own light. Dark rows (read while no LED was lit) are not
     # looked for here: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
     # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
-    own = _median_at_least(difference, lines, counted, REPEATED_FRAME_DIFFERENCE, finite=finite, below=True)
+    own = median_at_least(difference, lines, counted, REPEATED_FRAME_DIFFERENCE, finite=finite, below=True)
     return _edge_band(own.astype(np.int8), rows, index, axis)
 
 
@@ -861,10 +871,10 @@ def _side_tells(
             stands = open_
         else:
             model = modelled()
-            stands = open_ & _median_at_least(
+            stands = open_ & median_at_least(
                 model.contrast, lines, counted, LAGGED_BAND_CONTRAST, model.alike, model.finite
             )
-        differs = _median_at_least(
+        differs = median_at_least(
             _contrast(image, neighbour, lines.lit), lines, counted, LAGGED_BAND_CONTRAST, None, finite
         )
         tells[stands] = differs[stands]
@@ -874,7 +884,7 @@ def _side_tells(
     return tells
 
 
-def _median_at_least(
+def median_at_least(
     values: np.ndarray,
     lines: Lines,
     counted: np.ndarray,
@@ -939,6 +949,12 @@ def _edge_band(kind: np.ndarray, rows: np.ndarray, index: int, axis: str = "rows
             span = (int(rows[0]) * b, int(rows[run]) * b) if top else (int(rows[-run]) * b, (int(rows[-1]) + 1) * b)
             return LaggedBand(index, span, top, axis)
     return None
+
+
+def gel_blocks(gel: np.ndarray) -> np.ndarray:
+    """(H // b, W // b) bool: the blocks of :func:`_block_means` wholly on the ``gel`` ((H, W) bool; the mean's
+    rounding allowed for)."""
+    return _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6
 
 
 def _block_means(image: np.ndarray) -> np.ndarray:

@@ -65,14 +65,14 @@ def test_each_lines_median_against_a_threshold_is_told_by_counts_as_the_sorted_m
     counted = rng.random(60) < 0.9
     medians = rf._row_medians(values[counted], lit[counted])
     for threshold in (0.01, 0.02):
-        at_least = rf._median_at_least(values, lines, counted, threshold)
-        under = rf._median_at_least(values, lines, counted, threshold, below=True)
+        at_least = rf.median_at_least(values, lines, counted, threshold)
+        under = rf.median_at_least(values, lines, counted, threshold, below=True)
         assert np.array_equal(at_least, medians >= threshold)
         assert np.array_equal(under, medians < threshold)
     # a line of an even count with half its values under the threshold: the median decides (both ways)
     tie = np.array([[0.01, 0.03, 0.005, 0.04], [0.01, 0.02, 0.005, 0.03]])
     both = rf.Lines(np.ones(tie.shape, bool), np.full(2, 4))
-    assert rf._median_at_least(tie, both, np.ones(2, bool), 0.02).tolist() == [True, False]
+    assert rf.median_at_least(tie, both, np.ones(2, bool), 0.02).tolist() == [True, False]
 
 
 def test_the_model_is_computed_once_per_design_and_anew_for_another(monkeypatch):
