@@ -604,6 +604,15 @@ the frame still found at each size (benchmarks/RESULTS.md, s33-rimband). With th
 modelled lights must differ there by as much too, and each side's image is the nearest whose LED the model tells
 from the previous one at that line: LEDs designed in close pairs light the gel far from the pair alike (every clean
 paired capture was warned; a true lag of a pair's first LED mostly unseen, before s35-pairband)."""
+LAG_BLIND_SHARE = 0.2
+"""Two consecutive LEDs are named as a pair the lag-band check is blind to (:mod:`nlipscalib.core.lag_blind`: one
+INFO line, once per command, where the check runs; the solve's report.json ``lag_blind_pairs``) when the LED model
+lights the gel so alike from both (within :data:`LAGGED_BAND_CONTRAST`) that a band of the first's light in the
+second's frame, read from the frame's edge, can cover this share of the gel's rows or columns, beyond the
+:data:`LAGGED_BAND_ROWS` any band needs, and not be found. s35-exchange's designs at 160x120: LEDs in pairs 0.5 mm
+apart 0.59-0.76, 0.8 mm 0.41-0.43, 1.2 mm 0.24 (pairs and triples); the shipped designs 0 (nlipstac_wide 0.05-0.12: its
+far base rim). A lag of 3/8 of the frame between a pair's LEDs was found on 4 of 16, 20 of 40 and 40 of 40 injections
+(s35-pairband); a fifth of the frame unseen is a blind spot worth a word, the wide view's rim is not (s36-lagcost)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image
@@ -617,7 +626,8 @@ HALF_DARK_NOISE = 3.0
 (linear, the channels' mean) is at most this many times its image's noise: the dark frame's level. Why: against the
 converged LEDs of s31-ledfar's twin (LEDs 3 mm / 25 deg off their design, one bounce, 160x120) LEDs 4 and 5 came out
 "dark" in columns 75-159 / 0-114 at the light-ratio test alone while their light there was 51 / 40 times the noise; a
-band read while the LED was off holds the dark frame's noise (median about 0) (s32-ledleft)."""
+band read while the LED was off holds the dark frame's noise (median about 0) (s32-ledleft). The solve's LED check
+asks the same of such a band (:func:`nlipscalib.solver.led_checks._half_dark_rows`, s36-lagcost)."""
 DARK_BAND_ROWS = 3
 """Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (columns) in a run, 15 pixels, for an LED image's rows (or every
 LED image's) to be called dark at the bands' test: read while no LED was lit; shorter runs are looked at row by row

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
+from ..core.lag_blind import say_lag_blind
 from ..core.repeated_frames import ExpectedLight, dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
@@ -111,6 +112,7 @@ def _repeated_lines(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )
     repeated, bands, dark = frame_checks(linear, gel, expected)
+    say_lag_blind(folder, expected, gel)  # LEDs in close pairs: where a lag between them goes unseen, once
     files = [f"{name}.png" for name in names]
     return (
         ([repeated_line(folder, files, repeated)] if repeated else [])

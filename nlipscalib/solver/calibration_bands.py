@@ -26,6 +26,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press, with_unusable_samples
 from ..core.errors import CaptureError
+from ..core.lag_blind import say_lag_blind
 from ..core.leds import Leds
 from ..core.repeated_frames import (
     DarkBand,
@@ -182,11 +183,11 @@ def half_dark_bands(
         live = [i for i in _own_light(p) if i not in {band.index for band in bands}]
         plain = {band.index for band in dark_rows(p, leds, live)}
         half = [band for band in dark_rows(p, leds, live, mostly_dark=True) if band.index not in plain]
-        out.append(tuple(band for band in half if _at_dark_level(p, band)))
+        out.append(tuple(band for band in half if at_dark_level(p, band)))
     return tuple(out)
 
 
-def _at_dark_level(press: Press, band: DarkBand) -> bool:
+def at_dark_level(press: Press, band: DarkBand) -> bool:
     """Whether ``band``'s gel pixels hold the dark frame's level in its LED's image: their median light (linear, the
     channels' mean) at most :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE` times the image's noise
     (:func:`.image_stats.image_noise`, at least one ADC step: a noise-free capture)."""
@@ -252,11 +253,15 @@ def check_left(press: Press, mask: np.ndarray, line: str) -> None:
 def _frame_faults(press: Press) -> tuple[list[tuple[int, float]], list[LaggedBand]]:
     """The capture's LED images that repeat the one before them, whole and partly (:func:`.frame_checks`' first two
     lists; none without a surface). The bands judged with each LED's modelled light (the design's LEDs): LEDs
-    designed in close pairs light the gel alike far from the pair, which is no lag (s35-pairband)."""
+    designed in close pairs light the gel alike far from the pair, which is no lag (s35-pairband); the pairs a lag
+    between which it cannot see said once per command (:func:`.say_lag_blind`)."""
     if press.reference is None:
         return [], []
     expected = model_light(press.reference.depth, press.reference.normals, press.camera, press.leds)
-    return frame_checks(press.linear_led_images, np.isfinite(press.reference.depth), expected)[:2]
+    gel = np.isfinite(press.reference.depth)
+    found = frame_checks(press.linear_led_images, gel, expected)[:2]
+    say_lag_blind(press.folder, expected, gel)
+    return found
 
 
 def _own_light(press: Press) -> list[int]:

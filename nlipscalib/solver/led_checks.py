@@ -21,6 +21,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError
+from ..core.lag_blind import say_lag_blind
 from ..core.leds import TRICOLOR_NAMES, Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
@@ -177,6 +178,7 @@ def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
+    dark += _half_dark_rows(press, leds, image, model, pixels, live, everywhere, dark)
     judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
     relative = _relative_gains(image, model, judged)
@@ -428,6 +430,46 @@ def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int], mostly_dar
     return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None, mostly_dark)
 
 
+def _half_dark_rows(
+    press: Press,
+    leds: Sequence[Led],
+    image: np.ndarray,
+    model: np.ndarray,
+    pixels: np.ndarray,
+    live: list[int],
+    everywhere: DarkBand | None,
+    found: list[DarkBand],
+) -> list[DarkBand]:
+    """The bands over more than half an LED's image at the dark frame's level (:func:`_dark_rows` with
+    ``mostly_dark``, each band's light at most :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE` times the image's
+    noise: :func:`.calibration_bands.at_dark_level`) of the LEDs without a band ``found`` whose light over the model
+    is dark at more than about half their samples (as :func:`.repeated_frames.lit_level` tells); none otherwise, at
+    the cost of a median and a quantile.
+
+    Why: over half dark, a band puts the LED's median light at the dark frame's noise, and every ratio to it says
+    lit: the twin-like exact press's led_05.png dark over 55-80 % of its rows was called "weak LED? (0.00 times the
+    light the LED model expects)" and left out whole, over 55-80 % of its columns "does not show that LED's light
+    (correlation -0.22 with its model, 0.72 with LED 2's): check the wiring" and solved with its dark columns
+    (s36-lagcost; s35-leftovers' "bands over half the frame are not found as bands"). The noise test keeps an LED
+    far from its design, whose light ends at its own terminator over as much but holds the indirect light there,
+    from being called dark (s31-ledfar, :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE`)."""
+    from ..core.repeated_frames import LIT_QUANTILE
+    from .calibration_bands import at_dark_level
+
+    light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
+    top = np.quantile(light, LIT_QUANTILE, axis=1)
+    banded = {band.index for band in found}
+    dim = {
+        live[k]
+        for k in np.flatnonzero((np.median(light, axis=1) < tolerances.DARK_BAND_LIGHT * top) & (top > 0))
+        if live[k] not in banded
+    }
+    if not dim:
+        return []
+    half = _dark_rows(press, leds, image, model, pixels, live, everywhere, mostly_dark=True)
+    return [band for band in half if band.index in dim and at_dark_level(press, band)]
+
+
 DENSE_LINE_SAMPLES = 100
 """Samples a pixel row (column) gets, about, where :func:`_dark_rows` looks for a band shorter than
 :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands (every ``width // 100``-th gel pixel of the row,
@@ -637,11 +679,14 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     """The line naming LED images that repeat the image before them (:func:`.frame_checks`: frames that lag the LED
     switch), none when none does, those LEDs (0-based), in the capture order of ``images.leds``; the LED images
     read out across the switch by a rolling shutter, in part the previous LED's light (:func:`.lagged_bands`); and
-    the rows dark in every LED image (None: none)."""
+    the rows dark in every LED image (None: none). The LED pairs a lag between which the check cannot see (LEDs in
+    close pairs) said once per command (:func:`.say_lag_blind`; report.json ``lag_blind_pairs``)."""
     from .exposure import expected_light_of
 
     gel = np.isfinite(press.reference.depth)
-    repeated, bands, everywhere = frame_checks(press.linear_led_images, gel, expected_light_of(press))
+    expected = expected_light_of(press)
+    repeated, bands, everywhere = frame_checks(press.linear_led_images, gel, expected)
+    say_lag_blind(press.folder, expected, gel)
     lines = [repeated_line(press.folder, names, repeated)] if repeated else []
     return lines, sorted(i for i, _ in repeated), bands, everywhere
 

@@ -43,6 +43,7 @@ from ..core import said_once, tolerances
 from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
+from ..core.lag_blind import lag_blind_pairs
 from ..core.leds import Led
 from ..core.repeated_frames import (
     DarkBand,
@@ -183,6 +184,7 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     """:func:`solve_press`'s body on a loaded press: the LED checks, the solve and its report."""
     keep_order = not kwargs.pop("reorder_leds", True)
     leds_name = kwargs.pop("leds_name", None)
+    blind = _lag_blind(press)  # in the capture's LED order, before any LED is reordered or left out
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
     led_notes, left_out, misplaced, order, measured, dark, exchanged = checks
     if order is not None and not keep_order:  # the images' own order: the physics is right again
@@ -299,6 +301,8 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
                 {"led": band.index, band.axis: [band.rows[0], band.rows[1]], "margin": tolerances.DARK_BAND_MARGIN}
                 for band in bands
             ]
+    if blind:
+        result.report["lag_blind_pairs"] = [pair.to_dict() for pair in blind]
     if order is not None:
         result.report["led_order"] = order if not keep_order else list(range(len(order)))
         result.report["leds_reordered"] = not keep_order
@@ -307,6 +311,16 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     if led_notes:
         result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
+
+
+def _lag_blind(press: Press) -> list:
+    """The consecutive LEDs a lag between which the press's lag-band check cannot see (:func:`.lag_blind_pairs`,
+    kept with the check's LED model: ~0.5 ms); none without an undeformed surface."""
+    from .exposure import expected_light_of
+
+    if press.reference is None:
+        return []
+    return lag_blind_pairs(expected_light_of(press), np.isfinite(press.reference.depth))
 
 
 class _SaidAlready(logging.Filter):
