@@ -8,35 +8,40 @@ from ..core.camera import Camera
 from ..core.errors import ShapeError
 from ..core.leds import Leds
 from . import threads
+from .frame_box import FrameBox
 from .options import SolverOptions
+from .samples import bright_end_pixels
 
 
 def check_inputs(
-    images: np.ndarray,
+    images: np.ndarray | FrameBox,
     camera: Camera,
     leds: Leds,
     prior_depth: np.ndarray | None,
     mask: np.ndarray | None,
     saturated: np.ndarray | None,
     opts: SolverOptions,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate the solver's inputs; returns (images ndarray, prior_depth (H, W) float64, mask (H, W) bool).
+) -> tuple[np.ndarray | FrameBox, np.ndarray, np.ndarray]:
+    """Validate the solver's inputs; returns (images ndarray, or the :class:`.frame_box.FrameBox` given, prior_depth
+    (H, W) float64, mask (H, W) bool).
 
     Raises ShapeError naming the offending argument.
     """
     leds = tuple(leds)
-    images = np.asarray(images)
+    images = images if isinstance(images, FrameBox) else np.asarray(images)
     H, W = camera.shape
-    if images.ndim != 4 or images.shape[1:] != (H, W, 3):
+    if len(images.shape) != 4 or images.shape[1:] != (H, W, 3):
         raise ShapeError(f"images must be (L, {H}, {W}, 3) for this camera, got {images.shape}")
     if images.shape[0] != len(leds):
         raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
     if len(leds) < opts.min_leds:
         raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
-    if not all(threads.map_items(_all_finite, images)):
+    # of a frame box, the values a solve reads: its box, and the frame's pixels the bright ends sample
+    read = [images.box, images.outside(bright_end_pixels((H, W)))] if isinstance(images, FrameBox) else [images]
+    if not all(all(threads.map_items(_all_finite, values)) for values in read):
         raise ShapeError(
-            f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
-            "with `mask` or `saturated` instead"
+            f"images contain {sum(int(np.sum(~np.isfinite(values))) for values in read)} NaN/inf values; mark bad "
+            "pixels with `mask` or `saturated` instead"
         )
     if saturated is not None and np.shape(saturated) != images.shape:
         raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")

@@ -421,8 +421,12 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
         for count in (1, 2):
             threads.set_workers(count)
             boxed = BoxCompensation(images, mask)
-            np.testing.assert_array_equal(boxed(light), expected)
-            np.testing.assert_array_equal(boxed(focus_light, receivers), after_focus)
+            np.testing.assert_array_equal(boxed(light).whole(), expected)
+            np.testing.assert_array_equal(boxed(focus_light, receivers).whole(), after_focus)
+            first_a_focus = BoxCompensation(images, mask)(focus_light, receivers)  # the box's rest: the images
+            expected_focus = images.copy()
+            expected_focus[:, 3:5, 4:6] = after_focus[:, 3:5, 4:6]
+            np.testing.assert_array_equal(first_a_focus.whole(), expected_focus)
     finally:
         threads.set_workers(before)
 
