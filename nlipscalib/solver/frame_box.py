@@ -10,7 +10,7 @@ import numpy as np
 from ..core.errors import ShapeError
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class FrameBox:
     """(L, H, W, 3) images, ``box`` on the frame's ``window`` and ``frame`` elsewhere, of which a solve reads the
     window's crop around its mask and the whole frame at the bright ends' sample grid only
@@ -27,7 +27,7 @@ class FrameBox:
     box: np.ndarray
     """(L, h, w, 3) float -- the images on the window, the same dtype as ``frame``."""
     window: tuple[slice, slice]
-    """(rows, columns) of the frame that ``box`` holds, steps of 1."""
+    """(rows, columns) of the frame that ``box`` holds, steps of 1 (kept with their bounds filled in)."""
 
     def __post_init__(self) -> None:
         rows, cols = (range(*s.indices(n)) for s, n in zip(self.window, self.frame.shape[1:3]))
@@ -36,6 +36,7 @@ class FrameBox:
             raise ShapeError(f"a frame box must be {want} for the frame {self.frame.shape}, got {self.box.shape}")
         if self.box.dtype != self.frame.dtype:
             raise ShapeError(f"a frame box's images are {self.box.dtype}, its frame's {self.frame.dtype}")
+        object.__setattr__(self, "window", (slice(rows.start, rows.stop), slice(cols.start, cols.stop)))
 
     @property
     def shape(self) -> tuple[int, ...]:

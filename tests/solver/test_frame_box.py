@@ -102,3 +102,10 @@ def test_a_frame_box_with_a_value_the_solve_reads_not_finite_is_refused(cube):
     frame.reshape(len(frame), -1, 3)[1, sampled, 0] = np.inf
     with pytest.raises(ShapeError, match="1 NaN/inf values"):
         solve(FrameBox(frame, images[:, window[0], window[1]].copy(), window), cube.camera, cube.leds, **kw)
+
+
+def test_a_frame_boxs_window_may_leave_its_bounds_open():
+    fb = _frame_box()
+    open_ended = FrameBox(fb.frame, fb.frame[:, 10:, :75].copy(), (slice(10, None), slice(None, 75)))
+    assert open_ended.window == (slice(10, 72), slice(0, 75))
+    np.testing.assert_array_equal(open_ended.crop((slice(20, 30), slice(0, 5))), fb.frame[:, 20:30, 0:5])
