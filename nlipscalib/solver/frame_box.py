@@ -4,6 +4,7 @@ the outer interreflection loop's passes give the solver, whose images change on 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -57,16 +58,24 @@ class FrameBox:
 
     def pixels(self, index: np.ndarray) -> np.ndarray:
         """(L, n, 3), a new array -- the images at the frame's pixels ``index`` (n,) (flat, row-major)."""
-        L, H, W, C = self.frame.shape
-        out = self.frame.reshape(L, H * W, C)[:, index]
-        rows, cols, inside = self._inside(index)
-        out[:, inside] = self.box[:, rows[inside] - self.window[0].start, cols[inside] - self.window[1].start]
-        return out
+        read = self.pixel_reader(index)
+        return np.stack([read(i) for i in range(self.frame.shape[0])])
 
-    def outside(self, index: np.ndarray) -> np.ndarray:
-        """(L, n', 3), a new array -- the frame's images at those of the pixels ``index`` (flat) outside the window."""
-        L, H, W, C = self.frame.shape
-        return self.frame.reshape(L, H * W, C)[:, index[~self._inside(index)[2]]]
+    def pixel_reader(self, index: np.ndarray) -> Callable[[int], np.ndarray]:
+        """``read(i)`` -> (n, 3), a new array: LED ``i``'s image at the frame's pixels ``index`` (n,) (flat,
+        row-major). Where they lie is found once; one LED per call, so that a caller's pool reads the LEDs side by
+        side (NumPy's indexing releases the GIL), as it reads an array's."""
+        C = self.frame.shape[-1]
+        rows, cols, inside = self._inside(index)
+        at = (rows[inside] - self.window[0].start) * (self.window[1].stop - self.window[1].start)
+        at += cols[inside] - self.window[1].start
+
+        def read(i: int) -> np.ndarray:
+            out = self.frame[i].reshape(-1, C)[index]
+            out[inside] = self.box[i].reshape(-1, C)[at]
+            return out
+
+        return read
 
     def _inside(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(rows, columns, whether in the window) of the frame's flat pixels ``index``."""

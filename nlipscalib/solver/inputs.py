@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..core.camera import Camera
@@ -10,7 +12,6 @@ from ..core.leds import Leds
 from . import threads
 from .frame_box import FrameBox
 from .options import SolverOptions
-from .samples import bright_end_pixels
 
 
 def check_inputs(
@@ -36,12 +37,9 @@ def check_inputs(
         raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
     if len(leds) < opts.min_leds:
         raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
-    # of a frame box, the values a solve reads: its box, and the frame's pixels the bright ends sample
-    read = [images.box, images.outside(bright_end_pixels((H, W)))] if isinstance(images, FrameBox) else [images]
-    if not all(all(threads.map_items(_all_finite, values)) for values in read):
+    if not all(threads.map_items(_finite_reader(images), range(images.shape[0]))):
         raise ShapeError(
-            f"images contain {sum(int(np.sum(~np.isfinite(values))) for values in read)} NaN/inf values; mark bad "
-            "pixels with `mask` or `saturated` instead"
+            f"images contain {_not_finite(images)} NaN/inf values; mark bad pixels with `mask` or `saturated` instead"
         )
     if saturated is not None and np.shape(saturated) != images.shape:
         raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")
@@ -61,6 +59,20 @@ def check_inputs(
         raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
 
     return images, prior_depth, mask
+
+
+def _finite_reader(images: np.ndarray | FrameBox) -> Callable[[int], bool]:
+    """``finite(i)``: whether LED ``i``'s image holds no NaN or inf: an array's; of a frame box, its box's and its
+    frame's (all of it, as when the two were one array: a scan costs less than picking the pixels the solve reads)."""
+    if isinstance(images, FrameBox):
+        return lambda i: _all_finite(images.box[i]) and _all_finite(images.frame[i])
+    return lambda i: _all_finite(images[i])
+
+
+def _not_finite(images: np.ndarray | FrameBox) -> int:
+    """How many values of ``images`` (:func:`_finite_reader`'s) are NaN or inf."""
+    parts = [images.box, images.frame] if isinstance(images, FrameBox) else [images]
+    return sum(int(np.sum(~np.isfinite(part))) for part in parts)
 
 
 def _all_finite(image: np.ndarray) -> bool:

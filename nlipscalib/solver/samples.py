@@ -75,8 +75,9 @@ def _bright_ends(images: np.ndarray | FrameBox, dtype: np.typing.DTypeLike) -> t
         # NumPy < 2 returns float64 percentiles of float32 samples: cast, so the caller gets ``dtype`` either way
         return np.percentile(sample, 99).astype(dtype), np.percentile(sample, 99, axis=0).astype(dtype)
 
-    if isinstance(images, FrameBox):  # the same samples, gathered for all LEDs at once (5.5 MB at 640x480)
-        per_led = threads.map_items(percentiles, images.pixels(index))
+    if isinstance(images, FrameBox):  # the same samples, read from the frame and the box
+        read = images.pixel_reader(index)
+        per_led = threads.map_items(lambda i: percentiles(read(i)), range(images.shape[0]))
     else:
         per_led = threads.map_items(lambda image: percentiles(image.reshape(-1, 3)[index]), images)
     return np.array([high for high, _ in per_led]), np.stack([channels for _, channels in per_led])
