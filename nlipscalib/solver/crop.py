@@ -11,6 +11,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.leds import Leds, disk_points, led_arrays
 from ..core.reconstruction import Reconstruction as SolveResult  # the name nlips.py gives it
+from .frame_box import FrameBox, frame_crop
 from .options import SolverOptions
 from .pyramid import checked_prior_weights
 from .samples import exclusions, high_level
@@ -58,7 +59,7 @@ class LevelData:
     @classmethod
     def of(
         cls,
-        images: np.ndarray,
+        images: np.ndarray | FrameBox,
         saturated: np.ndarray | None,
         mask: np.ndarray,
         crop: tuple[slice, slice],
@@ -72,7 +73,7 @@ class LevelData:
         H, W = mask.shape
         # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
         dtype = np.float32 if opts.dtype == "float32" else np.float64
-        images = images[:, crop[0], crop[1]].astype(dtype, copy=False)
+        images = frame_crop(images, crop).astype(dtype, copy=False)
         sat = None if saturated is None else saturated[:, crop[0], crop[1]]
         # the exclusions' thresholds are statistics of the whole images; outside the mask nothing is usable
         use, report = exclusions(images, sat, opts, whole=whole)

@@ -2,41 +2,44 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..core.camera import Camera
 from ..core.errors import ShapeError
 from ..core.leds import Leds
 from . import threads
+from .frame_box import FrameBox
 from .options import SolverOptions
 
 
 def check_inputs(
-    images: np.ndarray,
+    images: np.ndarray | FrameBox,
     camera: Camera,
     leds: Leds,
     prior_depth: np.ndarray | None,
     mask: np.ndarray | None,
     saturated: np.ndarray | None,
     opts: SolverOptions,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate the solver's inputs; returns (images ndarray, prior_depth (H, W) float64, mask (H, W) bool).
+) -> tuple[np.ndarray | FrameBox, np.ndarray, np.ndarray]:
+    """Validate the solver's inputs; returns (images ndarray, or the :class:`.frame_box.FrameBox` given, prior_depth
+    (H, W) float64, mask (H, W) bool).
 
     Raises ShapeError naming the offending argument.
     """
     leds = tuple(leds)
-    images = np.asarray(images)
+    images = images if isinstance(images, FrameBox) else np.asarray(images)
     H, W = camera.shape
-    if images.ndim != 4 or images.shape[1:] != (H, W, 3):
+    if len(images.shape) != 4 or images.shape[1:] != (H, W, 3):
         raise ShapeError(f"images must be (L, {H}, {W}, 3) for this camera, got {images.shape}")
     if images.shape[0] != len(leds):
         raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
     if len(leds) < opts.min_leds:
         raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
-    if not all(threads.map_items(_all_finite, images)):
+    if not all(threads.map_items(_finite_reader(images), range(images.shape[0]))):
         raise ShapeError(
-            f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
-            "with `mask` or `saturated` instead"
+            f"images contain {_not_finite(images)} NaN/inf values; mark bad pixels with `mask` or `saturated` instead"
         )
     if saturated is not None and np.shape(saturated) != images.shape:
         raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")
@@ -56,6 +59,20 @@ def check_inputs(
         raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
 
     return images, prior_depth, mask
+
+
+def _finite_reader(images: np.ndarray | FrameBox) -> Callable[[int], bool]:
+    """``finite(i)``: whether LED ``i``'s image holds no NaN or inf: an array's; of a frame box, its box's and its
+    frame's (all of it, as when the two were one array: a scan costs less than picking the pixels the solve reads)."""
+    if isinstance(images, FrameBox):
+        return lambda i: _all_finite(images.box[i]) and _all_finite(images.frame[i])
+    return lambda i: _all_finite(images[i])
+
+
+def _not_finite(images: np.ndarray | FrameBox) -> int:
+    """How many values of ``images`` (:func:`_finite_reader`'s) are NaN or inf."""
+    parts = [images.box, images.frame] if isinstance(images, FrameBox) else [images]
+    return sum(int(np.sum(~np.isfinite(part))) for part in parts)
 
 
 def _all_finite(image: np.ndarray) -> bool:

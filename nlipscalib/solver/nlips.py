@@ -53,6 +53,7 @@ from ..core.reconstruction import Reconstruction
 from ..progress import bars_enabled, progress_bar
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
+from .frame_box import FrameBox
 from .gauss_newton import expanded_step
 from .inputs import check_inputs
 from .kernel import Backend
@@ -76,7 +77,7 @@ LEVEL_BAR = "{desc}: {n_fmt} iterations so far, {elapsed}"
 
 
 def solve(
-    images: np.ndarray,
+    images: np.ndarray | FrameBox,
     camera: Camera,
     leds: Leds,
     *,
@@ -98,7 +99,8 @@ def solve(
     Parameters
     ----------
     images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1, RGB
-        One image per LED lit alone.
+        One image per LED lit alone; or a :class:`.frame_box.FrameBox` of them whose window holds the mask (the
+        outer interreflection loop's passes: their images change on the mask's bounding box only).
     camera : Camera -- its exact per-pixel rays are used (no pinhole assumption).
     leds : sequence of Led, length L, camera frame, mm.
     prior_depth : (H, W) float, mm, or None

@@ -15,6 +15,7 @@ from ..core import tolerances
 from ..core.capture import Press
 from ..core.metrics import angle_deg
 from . import radiosity, reuse, threads
+from .frame_box import FrameBox
 from .indirect import IndirectModel, Surface, patch_size, reference_surface, scaled_into, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult
@@ -115,6 +116,8 @@ class OuterLoop:
             gathered = _solved_surface_light(self.model, press, self.leds, result, where, surface, window)
             light = self._update(light, gathered, window, region, 0 if region is not None else missed)
             del gathered  # in the light now: not held through the solve (44 MB at 640x480 with 12 LEDs)
+            if region is None:  # only a focus pass's surface is recomputed after it: not held through the solve
+                surface = None  # (~9 MB of whole-frame maps at 640x480)
             missed = missed + 1 if region is not None else 0
             self.seconds += time.perf_counter() - t0
             # a small change of the light: start from the last depth; refined (and on the whole mask) at the last
@@ -235,17 +238,18 @@ def _unrefined_levels(camera: Camera) -> int:
 
 class BoxCompensation:
     """The images minus an indirect light given on the mask's bounding box (the outer loop's, zero outside it):
-    ``compensate`` on that box only, written into one copy of the images kept across the passes. The same
-    array as ``compensate(images, light)`` for the whole-frame light, without a whole-frame pass per solve (an
-    auto ROI's box is a sixth of a 640x480 frame).
+    ``compensate`` on that box only, written into one box-sized buffer kept across the passes, and handed to the
+    solve as a :class:`.frame_box.FrameBox` (the images themselves outside the box). The same values as
+    ``compensate(images, light)`` for the whole-frame light, without a whole-frame pass per solve (an auto ROI's
+    box is a sixth of a 640x480 frame) or a whole-frame copy of the images (44 MB at 640x480 with 12 LEDs).
 
-    One LED per pool task (the same bits): on a 640x480 whole frame the first call's copy of the images and each
-    call's subtraction and clipping over the whole box, 44 MB arrays with 12 LEDs, ran in the main thread."""
+    One LED per pool task (the same bits): on a 640x480 whole frame each call's subtraction and clipping over the
+    whole box, 44 MB arrays with 12 LEDs, ran in the main thread."""
 
     def __init__(self, images: np.ndarray, mask: np.ndarray):
         self.images, self.mask, self.buffer, self.box = images, mask, None, None
 
-    def __call__(self, light: np.ndarray, receivers: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, light: np.ndarray, receivers: np.ndarray | None = None) -> FrameBox:
         """``light``: (L, h, w, 3) on the mask's bounding box; ``receivers``: (H, W) bool, the pixels the solve
         reads when not the whole mask (a focus pass): only their box is compensated (the solve crops to it),
         the rest of the buffer is left as the last call wrote it."""
@@ -253,18 +257,22 @@ class BoxCompensation:
         if first:
             x0, y0, w, h = box_of(self.mask)
             self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
-            self.buffer = np.empty(np.shape(self.images), np.float32)
+            self.buffer = np.empty((len(self.images), h, w, self.images.shape[-1]), np.float32)
         window = self.box if receivers is None else _slices(box_of(receivers))
         rows, cols = _within(window, self.box)
+        fill = first and window != self.box  # the box's pixels that this call leaves: the images themselves
 
         def one_led(i: int) -> None:
-            if first:
-                self.buffer[i] = self.images[i]  # outside the box the images themselves
-            here = (slice(i, i + 1), window[0], window[1])
-            compensate(self.images[here], light[i : i + 1, rows, cols], out=self.buffer[here])
+            if fill:
+                self.buffer[i] = self.images[i, self.box[0], self.box[1]]
+            compensate(
+                self.images[i : i + 1, window[0], window[1]],
+                light[i : i + 1, rows, cols],
+                out=self.buffer[i : i + 1, rows, cols],
+            )
 
         threads.map_items(one_led, range(len(self.buffer)))
-        return self.buffer
+        return FrameBox(self.images, self.buffer, self.box)
 
 
 def _slices(box: list[int]) -> tuple[slice, slice]:

@@ -874,7 +874,7 @@ class _Runner:
         self.press, self.leds, self.images, self.prior, self.weights = press, leds, images, prior, weights
         self.mask, self.options, self.backend, self.progress = mask, options, backend, progress
         self.fixed_light = fixed_light
-        self.saturated = press.saturated_led_images | press.saturated(press.dark)[None]
+        self.saturated = _saturated_samples(press)
         self.boxed = BoxCompensation(images, mask)
 
     def compensated(self, light: np.ndarray | None, receivers: np.ndarray | None = None):
@@ -916,6 +916,20 @@ class _Runner:
                 + nothing_to_fit(self.press)  # black or saturated throughout: say so
             )
         return result
+
+
+def _saturated_samples(press: Press) -> np.ndarray:
+    """(L, H, W, 3) bool, read-only -- the samples a solve leaves out as saturated: the LED images' own
+    (``press.saturated_led_images``) and, in every image, the dark frame's saturated pixels. Why not always their
+    union: a dark frame without a saturated pixel (every capture that is not broken) added nothing but a second
+    copy of the press's whole-frame flags (11 MB at 640x480 with 12 LEDs), held through every pass of the solve
+    (benchmarks/RESULTS.md, s36-cubemem)."""
+    dark = press.saturated(press.dark)
+    if not dark.any():
+        return press.saturated_led_images
+    union = press.saturated_led_images | dark[None]
+    union.setflags(write=False)
+    return union
 
 
 def _report_loop(rep: dict, loop: OuterLoop | None) -> None:

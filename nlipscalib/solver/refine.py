@@ -44,6 +44,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.leds import SHADING_BLOCK, Leds, disk_shading, led_arrays
 from . import robust, threads
+from .frame_box import FrameBox, frame_crop
 from .nlips import SolveResult
 from .options import SolverOptions
 from .samples import exclusions
@@ -51,7 +52,7 @@ from .samples import exclusions
 
 def refine_result(
     result: SolveResult,
-    images: np.ndarray,
+    images: np.ndarray | FrameBox,
     saturated: np.ndarray | None,
     leds: Leds,
     options: SolverOptions,
@@ -63,7 +64,8 @@ def refine_result(
     ----------
     result : SolveResult of :func:`nlipscalib.solver.solve` on these images (its report's finest level's
         ``lambda`` and ``intensity_scale`` give the fit's scale).
-    images : (L, H, W, 3) float, linear, the images that solve read (minus any indirect light).
+    images : (L, H, W, 3) float, linear, the images that solve read (minus any indirect light), or a
+        :class:`.frame_box.FrameBox` of them.
     saturated : (L, H, W, 3) bool or None.
     leds : sequence of Led, length L, camera frame, mm.
     options : SolverOptions of that solve (its exclusions are the fit's).
@@ -83,13 +85,13 @@ def refine_result(
     if rows.size:
         box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
         sat = None if saturated is None else saturated[:, box[0], box[1]]
-        usable, report = exclusions(images[:, box[0], box[1]], sat, options, whole=images)
+        usable, report = exclusions(frame_crop(images, box), sat, options, whole=images)
         inside = rec[box]
         lam = result.report["levels"][-1]["lambda"] * result.report["intensity_scale"]
         alive = len(leds) - len(report["dead_leds"])
         n_new, rho_new, changed = refine_normals(
             RefitInputs(
-                images[:, box[0], box[1]][:, inside],
+                frame_crop(images, box)[:, inside],
                 usable[:, inside],
                 result.points[box][inside],
                 result.normals[box][inside],

@@ -9,12 +9,16 @@ import numpy as np
 
 from ..core import masks
 from . import threads
+from .frame_box import FrameBox
 from .image_stats import lit_leds
 from .options import SolverOptions
 
 
 def exclusions(
-    images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions, whole: np.ndarray | None = None
+    images: np.ndarray,
+    saturated: np.ndarray | None,
+    options: SolverOptions,
+    whole: np.ndarray | FrameBox | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Which (LED, pixel, channel) samples the data term may use, and why others are excluded.
 
@@ -23,8 +27,9 @@ def exclusions(
     images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1, finite
     saturated : (L, H, W, 3) bool or None
     options : SolverOptions
-    whole : (L, H', W', 3) float or None -- the whole images when ``images`` is a crop of them: the
-        dead-LED and shadow thresholds are statistics of the whole images (default ``images``).
+    whole : (L, H', W', 3) float, a :class:`.frame_box.FrameBox` of them, or None -- the whole images when
+        ``images`` is a crop of them: the dead-LED and shadow thresholds are statistics of the whole images
+        (default ``images``).
 
     Returns
     -------
@@ -53,24 +58,35 @@ def exclusions(
     return usable, report
 
 
-def _bright_ends(images: np.ndarray, dtype: np.typing.DTypeLike) -> tuple[np.ndarray, np.ndarray]:
+def _bright_ends(images: np.ndarray | FrameBox, dtype: np.typing.DTypeLike) -> tuple[np.ndarray, np.ndarray]:
     """The 99th percentile of each image over its pixels and channels, (L,), and per channel, (L, 3).
 
-    ``images`` (L, H, W, 3) float, linear; the percentiles are taken in ``dtype``. Image statistics: a regular
-    subgrid of the pixels gives the same 99th percentiles as all of them at a fraction of the cost (this dominated
-    small ROI solves). One LED per pool task: the gather and the two percentiles took ~15 ms of one core per
+    ``images`` (L, H, W, 3) float, linear, or a :class:`.frame_box.FrameBox` of them (its samples the same values);
+    the percentiles are taken in ``dtype``. Image statistics: a regular subgrid of the pixels
+    (:func:`bright_end_pixels`) gives the same 99th percentiles as all of them at a fraction of the cost (this
+    dominated small ROI solves). One LED per pool task: the gather and the two percentiles took ~15 ms of one core per
     solve at 640x480 with 12 LEDs, once per outer-loop pass, while the other waited. Each LED's percentiles are
     the same numbers whether taken alone or along an axis of the stack (the same order statistics and
     interpolation), so the same bits."""
-    index = np.flatnonzero(masks.sample_grid(np.ones(images.shape[1:3], bool)))
+    index = bright_end_pixels(images.shape[1:3])
 
-    def one_led(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        sample = image.reshape(-1, 3)[index].astype(dtype, copy=False)
+    def percentiles(sample: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        sample = sample.astype(dtype, copy=False)
         # NumPy < 2 returns float64 percentiles of float32 samples: cast, so the caller gets ``dtype`` either way
         return np.percentile(sample, 99).astype(dtype), np.percentile(sample, 99, axis=0).astype(dtype)
 
-    per_led = threads.map_items(one_led, images)
+    if isinstance(images, FrameBox):  # the same samples, read from the frame and the box
+        read = images.pixel_reader(index)
+        per_led = threads.map_items(lambda i: percentiles(read(i)), range(images.shape[0]))
+    else:
+        per_led = threads.map_items(lambda image: percentiles(image.reshape(-1, 3)[index]), images)
     return np.array([high for high, _ in per_led]), np.stack([channels for _, channels in per_led])
+
+
+def bright_end_pixels(shape: tuple[int, int]) -> np.ndarray:
+    """(n,) int -- the flat (row-major) pixels of an (H, W) image whose samples give its bright ends (the dead-LED
+    and shadow thresholds of :func:`exclusions`): a regular subgrid (:func:`nlipscalib.core.masks.sample_grid`)."""
+    return np.flatnonzero(masks.sample_grid(np.ones(shape, bool)))
 
 
 def _usable_rows(

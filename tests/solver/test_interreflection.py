@@ -395,8 +395,9 @@ def test_the_outer_loops_update_by_blocks_of_rows_has_the_bits_of_the_whole_wind
 
 def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
     """The outer loop's compensated images: the images minus the light given on the mask's box (zero outside it),
-    clipped at 0, as ``compensate`` of the whole frame; a focus pass rewrites its receivers' box only. One LED per
-    pool task: the same bits on one thread and on two."""
+    clipped at 0, as ``compensate`` of the whole frame (held as one box of it, a FrameBox); a focus pass rewrites
+    its receivers' box only, and a first call for a focus leaves the images themselves on the rest of the box. One
+    LED per pool task: the same bits on one thread and on two."""
     from nlipscalib.solver import threads
     from nlipscalib.solver.interreflection import compensate
     from nlipscalib.solver.outer_loop import BoxCompensation
@@ -421,8 +422,12 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
         for count in (1, 2):
             threads.set_workers(count)
             boxed = BoxCompensation(images, mask)
-            np.testing.assert_array_equal(boxed(light), expected)
-            np.testing.assert_array_equal(boxed(focus_light, receivers), after_focus)
+            np.testing.assert_array_equal(boxed(light).whole(), expected)
+            np.testing.assert_array_equal(boxed(focus_light, receivers).whole(), after_focus)
+            first_a_focus = BoxCompensation(images, mask)(focus_light, receivers)  # the box's rest: the images
+            expected_focus = images.copy()
+            expected_focus[:, 3:5, 4:6] = after_focus[:, 3:5, 4:6]
+            np.testing.assert_array_equal(first_a_focus.whole(), expected_focus)
     finally:
         threads.set_workers(before)
 

@@ -212,3 +212,61 @@ def test_help_of_solve_press_describes_every_keyword_it_takes():
     entries = re.findall(r"^(\w+(?:, \w+)*) :", inspect.getdoc(solve_press), re.M)  # "options, backend : ..."
     described = {name for entry in entries for name in entry.split(", ")}
     assert set(inspect.signature(solve_press).parameters) - described == set()
+
+def test_the_solves_saturated_samples_are_the_presss_own_unless_its_dark_frame_adds_some(folders):
+    """A dark frame without a saturated pixel adds nothing to the LED images' saturated samples: the solve reads the
+    press's own flags, not a second whole-frame copy of them (11 MB at 640x480 with 12 LEDs); one with some
+    flags them in every LED's image."""
+    import dataclasses
+
+    from nlipscalib.solver.press import _saturated_samples
+
+    press = load_press(folders[0])
+    assert _saturated_samples(press) is press.saturated_led_images
+    dark = press.dark.copy()
+    dark[3, 5, 1] = press.response.white_level
+    clipped = dataclasses.replace(press, dark=dark)
+    got = _saturated_samples(clipped)
+    assert got.all(axis=0)[3, 5, 1] and not got.flags.writeable
+    want = clipped.saturated_led_images.copy()
+    want[:, 3, 5, 1] = True
+    np.testing.assert_array_equal(got, want)
+
+
+def test_the_last_passs_solve_holds_neither_the_gathered_surface_nor_a_whole_frame_copy_of_the_images(
+    folders, monkeypatch
+):
+    """The outer interreflection loop's last pass: the solved surface its light was gathered from (~9 MB of
+    whole-frame maps at 640x480) is let go before the solve, and the solve's images are the press's with the box
+    compensated (a :class:`FrameBox`), not a second whole-frame array of them."""
+    import gc
+    import weakref
+
+    from nlipscalib.solver import outer_loop
+    from nlipscalib.solver import press as press_module
+    from nlipscalib.solver.frame_box import FrameBox
+
+    surfaces, seen = [], []
+    made = outer_loop._solved_surface
+
+    def solved_surface(*args):
+        surface = made(*args)
+        surfaces.append(weakref.ref(surface))
+        return surface
+
+    run = press_module._Runner.__call__
+
+    def call(self, light, init=None, unrefined=0, receivers=None):
+        images = self.compensated(light, receivers)
+        gc.collect()
+        seen.append((init is not None, type(images), [alive() is not None for alive in surfaces]))
+        return run(self, light, init, unrefined, receivers)
+
+    monkeypatch.setattr(outer_loop, "_solved_surface", solved_surface)
+    monkeypatch.setattr(press_module._Runner, "__call__", call)
+    press, reference = (load_press(f) for f in folders)
+    solve_press(press, roi="auto", indirect=reference, options=FAST, interreflection="on")
+    later = [(kind, alive) for warm, kind, alive in seen if warm]
+    assert later, "no pass after the first ran"
+    assert all(kind is FrameBox for kind, _ in later)
+    assert not any(any(alive) for _, alive in later)
