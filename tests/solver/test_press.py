@@ -213,6 +213,7 @@ def test_help_of_solve_press_describes_every_keyword_it_takes():
     described = {name for entry in entries for name in entry.split(", ")}
     assert set(inspect.signature(solve_press).parameters) - described == set()
 
+
 def test_the_solves_saturated_samples_are_the_presss_own_unless_its_dark_frame_adds_some(folders):
     """A dark frame without a saturated pixel adds nothing to the LED images' saturated samples: the solve reads the
     press's own flags, not a second whole-frame copy of them (11 MB at 640x480 with 12 LEDs); one with some
