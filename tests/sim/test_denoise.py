@@ -176,24 +176,33 @@ def test_noise_per_unit_coverage_is_filtered_to_its_mean_at_the_outline():
     assert abs(denoise_indirect(noisy, normals, depth, valid)[:, ring].sum() / clean[:, ring].sum() - 1) > 0.1
 
 
-def test_whole_coverage_keeps_the_filters_bits_and_an_uncovered_pixel_is_left_out():
+def test_whole_coverage_keeps_the_filters_bits_and_inside_the_gel_a_missed_sample_is_no_coverage():
+    """A gel-filling view's coverage is 1: its images keep their bits. Inside the gel a pixel's sample can slip
+    between the mesh's triangles (single-precision ray tests: 1 to 3 pixels of a 160x120 wide view, 9-50 px from
+    its outline, came out 15/16 or 255/256 covered): the render's defect, taken whole as before, not coverage."""
     normals, depth, valid = _guides()
     rng = np.random.default_rng(3)
     light = (0.2 + 0.05 * rng.standard_normal((2, H, W, 3))).astype(np.float32)
-    ones = np.ones((H, W), np.float32)
-    assert np.array_equal(
-        denoise_indirect(light, normals, depth, valid, coverage=ones), denoise_indirect(light, normals, depth, valid)
-    )
-    # a pixel whose centre sees the surface but none of whose samples did (a low sample count) holds no estimate:
-    # it must not pull its neighbours toward its 0
-    flat = np.full((1, H, W, 3), 0.2, np.float32)
-    holed = ones.copy()
-    holed[20, 25] = 0.0
-    out = denoise_indirect(flat * holed[None, ..., None], normals, depth, valid, coverage=holed)
-    assert out[0, 20, 25, 0] == 0
-    np.testing.assert_allclose(np.delete(out[0, 3:].reshape(-1, 3), (20 - 3) * W + 25, axis=0), 0.2, rtol=1e-5)
+    plain = denoise_indirect(light, normals, depth, valid)
+    assert np.array_equal(denoise_indirect(light, normals, depth, valid, coverage=np.ones((H, W), np.float32)), plain)
+    pinhole = np.where(valid, 1.0, 0.0).astype(np.float32)
+    pinhole[20, 25] = 15 / 16
+    assert np.array_equal(denoise_indirect(light, normals, depth, valid, coverage=pinhole), plain)
     with pytest.raises(ValueError):
-        denoise_indirect(flat, normals, depth, valid, coverage=ones[:, 1:])
+        denoise_indirect(light, normals, depth, valid, coverage=pinhole[:, 1:])
+
+
+def test_an_outline_pixel_none_of_whose_samples_reached_the_surface_is_left_out():
+    """At a low sample count a pixel whose centre sees the surface may have no sample on it (coverage 0): it holds
+    no estimate, and must not pull its neighbours toward its 0."""
+    normals, depth, valid, coverage = _outline()
+    on_outline = np.argwhere(valid & (coverage < 1))[0]
+    coverage[tuple(on_outline)] = 0.0
+    light = np.full((1, H, W, 3), 0.2, np.float32) * coverage[None, ..., None]
+    out = denoise_indirect(light, normals, depth, valid, coverage=coverage)
+    assert np.all(out[0, on_outline[0], on_outline[1]] == 0)
+    covered = valid & (coverage > 0)
+    np.testing.assert_allclose(out[0, covered] / coverage[covered][:, None], 0.2, rtol=1e-5)
 
 
 def _wide_ideal(width: int, height: int):

@@ -19,6 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ...core.masks import SQUARE, dilate
+
 _TAPS = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # B3 spline: the a-trous scaling function
 
 
@@ -61,10 +63,10 @@ def denoise_indirect(
     A pixel on the gel's outline (a view beyond the gel) is partly covered: its light is its covered share of
     the surface's. Filtered as it is, its neighbours' full light and its share were averaged (the outer pixel of
     a wide view came out +17 % of its light, those 1-8 px in 0.2-0.9 % low; benchmarks/RESULTS.md,
-    s35-wideedge): the light is divided by the coverage, filtered, and multiplied by it again. A pixel covered
-    whole divides and multiplies by 1: a gel-filling view's images keep their bits. (Weighing each pixel by its
-    coverage, the share of its samples on the surface, changed the outline's error by under 0.05 % of the
-    light and its noise not at all: not done; s36-twinfilter.)
+    s35-wideedge): on the outline the light is divided by the coverage, filtered, and multiplied by it again. A
+    pixel covered whole divides and multiplies by 1: a gel-filling view's images keep their bits. (Weighing each
+    pixel by its coverage, the share of its samples on the surface, changed the outline's error by under 0.05 % of
+    the light and its noise not at all: not done; s36-twinfilter.)
 
     Parameters
     ----------
@@ -73,7 +75,8 @@ def denoise_indirect(
     depth : (H, W) float, mm -- z of that surface, NaN where no surface
     valid : (H, W) bool -- pixels whose centre sees the surface
     coverage : (H, W) float in [0, 1] or None (1 on ``valid``) -- the share of each pixel's footprint on the
-        surface (the render's alpha: the share of its samples that reach it)
+        surface (the render's alpha: the share of its samples that reach it); read on the outline of ``valid``
+        only (its pixels with a neighbour, of 8, off it), 1 inside
 
     Returns
     -------
@@ -86,7 +89,14 @@ def denoise_indirect(
         raise ValueError(f"guides {normals.shape}, {depth.shape}, {valid.shape} do not match images {indirect.shape}")
     if coverage is not None and coverage.shape != (H, W):
         raise ValueError(f"coverage {coverage.shape} does not match images {indirect.shape}")
-    cover = np.where(valid, 1.0 if coverage is None else coverage, 0.0).astype(np.float32)
+    cover = valid.astype(np.float32)
+    if coverage is not None:
+        # taken on the outline only, the pixels beside one whose centre misses the surface (a partly covered pixel
+        # always is one). Inside, a sample that slipped between the mesh's triangles (single-precision ray tests;
+        # groundtruth._retrace_pinholes) is the render's defect, not coverage: such a pixel is taken whole, as
+        # before, and a gel-filling view keeps its bits
+        outline = valid & dilate(~valid, structure=SQUARE)
+        cover[outline] = coverage[outline]
     # channels last, one (H, W, 3L) stack: every tap is one multiply-add over all LEDs; the light per unit
     # coverage (a pixel covered whole divides by 1: its bits are kept)
     img = np.moveaxis(np.asarray(indirect, np.float32), 0, 2).reshape(H, W, 3 * L)
