@@ -51,8 +51,9 @@ class RenderResult:
     """Wall time of scene build + render + ground truth."""
     coverage: np.ndarray | None = None
     """(H, W) float32 in [0, 1]: the share of each pixel's samples whose camera ray meets the gel (the film's
-    alpha; through a refracting gel, its inner surface); below 1 only on the gel's outline in a view beyond it.
-    None when only the ground truth was asked for."""
+    alpha; through a refracting gel, its inner surface); below 1 on the gel's outline in a view beyond it (and,
+    rarely, inside where a sample slips between the mesh's triangles). None when only the ground truth was asked
+    for."""
 
 
 def render_surface(
