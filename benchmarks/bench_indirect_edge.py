@@ -12,7 +12,7 @@ point shading of the ideal twin's point LEDs gives its coverage): use an ideal s
 
 Usage: python benchmarks/bench_indirect_edge.py SCENE CAPTURE DIRECT [--spp 256] [--seed 6]
 
-Prints only (benchmarks/RESULTS.md, s35-wideedge, has the runs).
+Prints only (benchmarks/RESULTS.md, s35-wideedge and s36-twinfilter, have the runs).
 """
 
 from __future__ import annotations

@@ -123,7 +123,7 @@ def test_the_raw_bounce_light_noise_the_texts_quote_is_one_figure_and_a_render_s
 
     captured = []
 
-    def unfiltered(indirect, normals, depth, valid, cfg):  # the bounce light as rendered, kept and passed on
+    def unfiltered(indirect, normals, depth, valid, cfg, coverage=None):  # the bounce light as rendered, kept
         captured.append((np.asarray(indirect, np.float64), valid))
         return indirect
 

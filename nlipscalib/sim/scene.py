@@ -205,9 +205,10 @@ class RenderConfig:
     """Seed of the sampler and the noise: same seed, same images."""
     denoise_indirect: bool = True
     """With bounces: filter the path tracer's Monte Carlo noise out of the bounce light before the camera
-    (edge-avoiding a-trous filter on the true normals and depth, :mod:`nlipscalib.sim.render.denoise`).
-    At 16 spp that noise is about 27 % of the bounce light per pixel (RMS, against 256 spp), more than the sensor
-    noise in all; it is the renderer's, not a sensor's. The direct light is never filtered."""
+    (edge-avoiding a-trous filter on the true normals and depth, :mod:`nlipscalib.sim.render.denoise`; on the gel's
+    outline in a view past it, per unit of each pixel's coverage, the render's alpha). At 16 spp that noise is
+    about 27 % of the bounce light per pixel (RMS, against 256 spp), more than the sensor noise in all; it is the
+    renderer's, not a sensor's. The direct light is never filtered."""
     denoise: DenoiseConfig = DenoiseConfig()
     """The filter's settings."""
 

@@ -19,6 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ...core.masks import SQUARE, dilate
+
 _TAPS = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # B3 spline: the a-trous scaling function
 
 
@@ -54,34 +56,58 @@ def denoise_indirect(
     depth: np.ndarray,
     valid: np.ndarray,
     cfg: DenoiseConfig = DenoiseConfig(),
+    coverage: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Edge-avoiding a-trous filter of the bounce light of every LED image.
+    """Edge-avoiding a-trous filter of the bounce light of every LED image, per unit of each pixel's coverage.
+
+    A pixel on the gel's outline (a view beyond the gel) is partly covered: its light is its covered share of
+    the surface's. Filtered as it is, its neighbours' full light and its share were averaged (the outer pixel of
+    a wide view came out +17 % of its light, those 1-8 px in 0.2-0.9 % low; benchmarks/RESULTS.md,
+    s35-wideedge): on the outline the light is divided by the coverage, filtered, and multiplied by it again. A
+    pixel covered whole divides and multiplies by 1: a gel-filling view's images keep their bits. (Weighing each
+    pixel by its coverage, the share of its samples on the surface, changed the outline's error by under 0.05 % of
+    the light and its noise not at all: not done; s36-twinfilter.)
 
     Parameters
     ----------
     indirect : (L, H, W, 3) float -- the light of the bounce vertices, linear radiance, one image per LED
     normals : (H, W, 3) float, unit, camera frame -- the surface each pixel sees (ground truth)
     depth : (H, W) float, mm -- z of that surface, NaN where no surface
-    valid : (H, W) bool -- pixels that see the surface
+    valid : (H, W) bool -- pixels whose centre sees the surface
+    coverage : (H, W) float in [0, 1] or None (1 on ``valid``) -- the share of each pixel's footprint on the
+        surface (the render's alpha: the share of its samples that reach it); read on the outline of ``valid``
+        only (its pixels with a neighbour, of 8, off it), 1 inside
 
     Returns
     -------
     (L, H, W, 3) float32 -- filtered; 0 outside ``valid``. Each output is a normalised weighted mean of
-    pixels of the same image, so a constant field is returned unchanged.
+    pixels of the same image (per unit coverage, times the pixel's own), so a constant field is returned
+    unchanged.
     """
     L, H, W, _ = indirect.shape
     if normals.shape != (H, W, 3) or depth.shape != (H, W) or valid.shape != (H, W):
         raise ValueError(f"guides {normals.shape}, {depth.shape}, {valid.shape} do not match images {indirect.shape}")
-    # channels last, one (H, W, 3L) stack: every tap is one multiply-add over all LEDs
-    img = np.where(valid[..., None], np.moveaxis(np.asarray(indirect, np.float32), 0, 2).reshape(H, W, 3 * L), 0.0)
-    img = img.astype(np.float32)
+    if coverage is not None and coverage.shape != (H, W):
+        raise ValueError(f"coverage {coverage.shape} does not match images {indirect.shape}")
+    cover = valid.astype(np.float32)
+    if coverage is not None:
+        # taken on the outline only, the pixels beside one whose centre misses the surface (a partly covered pixel
+        # always is one). Inside, a sample that slipped between the mesh's triangles (single-precision ray tests;
+        # groundtruth._retrace_pinholes) is the render's defect, not coverage: such a pixel is taken whole, as
+        # before, and a gel-filling view keeps its bits
+        outline = valid & dilate(~valid, structure=SQUARE)
+        cover[outline] = coverage[outline]
+    # channels last, one (H, W, 3L) stack: every tap is one multiply-add over all LEDs; the light per unit
+    # coverage (a pixel covered whole divides by 1: its bits are kept)
+    img = np.moveaxis(np.asarray(indirect, np.float32), 0, 2).reshape(H, W, 3 * L)
+    img = np.where((cover > 0)[..., None], img / np.where(cover > 0, cover, 1.0)[..., None], 0.0).astype(np.float32)
     n = np.where(valid[..., None], normals, 0.0).astype(np.float32)
     z = np.where(valid, depth, 0.0).astype(np.float32)
     inv_n = np.float32(1.0 / (1.0 - np.cos(np.radians(cfg.normal_deg))))
     inv_z = (1.0 / np.maximum(cfg.depth_rel * z, 1e-6)).astype(np.float32)
     gz_y, gz_x = _depth_gradient(z, valid)
     gn_y, gn_x = _normal_gradient(n, valid)
-    inside = valid.astype(np.float32)
+    inside = (cover > 0).astype(np.float32)  # a pixel none of whose samples reached the surface has no estimate
     for level in range(cfg.iterations):
         step = 2**level
         taps = []  # (destination, source, weight): the guides' weights are shared by every channel
@@ -100,7 +126,7 @@ def denoise_indirect(
                 den[dst] += w
                 taps.append((dst, src, w[..., None]))
         img = _apply(img, taps, den)
-    out = np.moveaxis(img.reshape(H, W, L, 3), 2, 0)
+    out = np.moveaxis((img * cover[..., None]).reshape(H, W, L, 3), 2, 0)
     return np.where(valid[None, ..., None], out, 0.0).astype(np.float32)
 
 

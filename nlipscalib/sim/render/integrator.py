@@ -77,11 +77,14 @@ def make_integrator_class(mi: ModuleType, led_class: type) -> type:
             ray = mi.Ray3f(ray)
             active = mi.Bool(active)
             ctx = mi.BSDFContext()
-            hit_first = None
+            # the film's alpha, the pixel's coverage by the gel (scene.sensor_entry): whether the camera ray meets
+            # it. Through a refracting gel that is its inner surface, whether or not the walk then reaches the coat
+            # (a path reflected at the interface is the pixel's light lost there, not a pixel beside the gel).
+            covered = scene.ray_test(ray, active) if self.refract else None
             # Python-unrolled: bounces is small and each vertex needs all LEDs anyway.
             for depth in range(self.bounces + 1):
                 si, ray, throughput, active = self._next_coat_vertex(scene, sampler, ray, throughput, active)
-                hit_first = active if hit_first is None else hit_first
+                covered = active if covered is None else covered
                 bsdf = si.bsdf(ray)
                 into = bounced if self.split and depth > 0 else acc
                 for k, led in enumerate(leds):
@@ -96,7 +99,7 @@ def make_integrator_class(mi: ModuleType, led_class: type) -> type:
             for a in acc + (bounced if self.split else []):
                 total += a
             aovs = [channel for a in acc + (bounced if self.split else []) for channel in (a[0], a[1], a[2])]
-            return total, hit_first, aovs
+            return total, covered, aovs
 
         def _next_coat_vertex(self, scene: Any, sampler: Any, ray: Any, throughput: Any, active: Any):
             """The coat point ``ray`` reaches: its first hit, or past the interface when refracting."""

@@ -46,7 +46,9 @@ def led_entries(mi: ModuleType, leds: Leds, only: int | None = None, shape: str 
 
 
 def sensor_entry(camera: Camera, spp: int) -> dict:
-    """The distorted camera with a box filter so every sample stays in its own pixel."""
+    """The distorted camera with a box filter so every sample stays in its own pixel, and an alpha channel (after
+    R, G, B): the share of the pixel's samples that reach the gel, its coverage (partly covered pixels lie on the
+    gel's outline in a view beyond the gel; the bounce light's filter works per unit of it, :mod:`.denoise`)."""
     root = math.isqrt(spp)
     if root * root == spp:
         sampler = {"type": "stratified", "sample_count": spp}
@@ -56,7 +58,7 @@ def sensor_entry(camera: Camera, spp: int) -> dict:
         "type": "hdrfilm",
         "width": camera.width,
         "height": camera.height,
-        "pixel_format": "rgb",
+        "pixel_format": "rgba",
         "rfilter": {"type": "box"},
     }
     return {"type": CAMERA_PLUGIN, **camera_props(camera), "film": film, "sampler": sampler}

@@ -49,6 +49,11 @@ class RenderResult:
     seed: int
     seconds: float
     """Wall time of scene build + render + ground truth."""
+    coverage: np.ndarray | None = None
+    """(H, W) float32 in [0, 1]: the share of each pixel's samples whose camera ray meets the gel (the film's
+    alpha; through a refracting gel, its inner surface); below 1 on the gel's outline in a view beyond it (and,
+    rarely, inside where a sample slips between the mesh's triangles). None when only the ground truth was asked
+    for."""
 
 
 def render_surface(
@@ -93,8 +98,8 @@ def render_surface(
     # handled by the main thread alone (see .interruptible). Mitsuba's log is redirected here, in the main thread,
     # so that an interrupted render leaves no log file behind (the abandoned thread would never remove it).
     with _warnings_relayed(mi):
-        stack, gt = call_interruptibly(work)
-    return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
+        stack, gt, coverage = call_interruptibly(work)
+    return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0, coverage)
 
 
 def _render_and_trace(
@@ -108,9 +113,10 @@ def _render_and_trace(
     integrator: str,
     only_led: int | None,
     images: bool,
-) -> tuple[np.ndarray | None, GroundTruth]:
-    """:func:`render_surface`'s work once Mitsuba is loaded: the scene built, the images rendered (``images``;
-    else None) and the ground truth traced. Writes nothing (it may be abandoned, :func:`call_interruptibly`)."""
+) -> tuple[np.ndarray | None, GroundTruth, np.ndarray | None]:
+    """:func:`render_surface`'s work once Mitsuba is loaded: the scene built, the images and their coverage
+    rendered (``images``; else None, None) and the ground truth traced. Writes nothing (it may be abandoned,
+    :func:`call_interruptibly`)."""
     r = scene_cfg.render
     # the bounce light comes in AOVs of its own to be denoised (RenderConfig.denoise_indirect)
     split = r.denoise_indirect and bounces > 0 and integrator == "multi"
@@ -142,24 +148,26 @@ def _render_and_trace(
         interface=_interface(scene_cfg),
         split_bounces=split,
     )
-    stack = _render_images(mi, scene, camera.shape, spp, seed, integrator) if images else None
+    stack, coverage = _render_images(mi, scene, camera.shape, spp, seed, integrator) if images else (None, None)
     optics = scene_cfg.gel_optics
     gt = trace_ground_truth(mi, scene, camera, optics.gel_ior / optics.housing_ior if optics.enabled else None)
     if split and stack is not None:  # the direct light, then every LED's bounce light filtered along the surface
         n = len(stack) // 2
-        stack = stack[:n] + denoise_indirect(stack[n:], gt.normals, gt.depth, gt.valid, r.denoise)
-    return stack, gt
+        stack = stack[:n] + denoise_indirect(stack[n:], gt.normals, gt.depth, gt.valid, r.denoise, coverage)
+    return stack, gt, coverage
 
 
 def _render_images(
     mi: ModuleType, scene: mitsuba.Scene, shape: tuple[int, int], spp: int, seed: int, integrator: str
-) -> np.ndarray:
-    """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(L, H, W, 3) float32 linear images (one per LED from the AOVs, or the path tracer's one image) and the
+    (H, W) float32 coverage of each pixel by the gel (the film's alpha: the share of its samples that reach it)."""
     out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     h, w = shape
+    coverage = np.ascontiguousarray(out[..., 3])  # the film is R, G, B, A, then the AOVs (scene.sensor_entry)
     if integrator == "multi":
-        return np.ascontiguousarray(out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3))
-    return np.ascontiguousarray(out[None, ..., :3])
+        return np.ascontiguousarray(out[..., 4:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3)), coverage
+    return np.ascontiguousarray(out[None, ..., :3]), coverage
 
 
 MITSUBA_INTERRUPT_NOTICE = "Received interrupt signal, winding down"
