@@ -367,9 +367,10 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
     from ..core.errors import ConfigError
 
     try:
-        from ..learn.infer import Predictor
+        from ..learn.infer import Predictor, predictor_device
     except ModuleNotFoundError:
         raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
+    predictor_device(args.device, args.backend, args.full_frame, flag=True)  # worded with the flags, not keywords
     predictor = Predictor(
         args.model,
         backend=args.backend,

@@ -108,7 +108,7 @@ def _check_args(args: argparse.Namespace) -> None:
         if getattr(args, name) is not None:
             check_count(f"--{name}", getattr(args, name), minimum=minimum)
     if args.polar is not None:
-        from ..sim.press import check_polar
+        from ..sim.indent import check_polar
 
         check_polar("--polar", args.polar)
     if args.size is not None:
@@ -205,6 +205,8 @@ def _press(args: argparse.Namespace) -> PressConfig:
     except TypeError as exc:
         raise ConfigError(f"press: {exc}") from None
     except ConfigError as exc:  # a typed word named by its flag, not by the key it sets ("press.indenter.kind")
+        if mesh := re.search(r"indenter mesh .*", str(exc)):  # names its file itself (IndenterConfig checks it)
+            raise ConfigError(mesh[0]) from None
         found = None if args.press_file else re.fullmatch(r"press\.indenter\.(kind|orientation): (.*)", str(exc))
         if found is None:
             raise
@@ -219,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.atomic import check_writable
+    from ..core.press_folders import check_render_out
     from ..progress import print_result, say, working
     from ..sim.dataset_folder import missing_files
     from ..sim.press import render_press
@@ -234,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
 
         make_indenter(press.indenter)  # a missing or unreadable mesh is named now, not taken for an edited one
     out = Path(args.out)
-    _check_replaceable(out)
+    check_render_out(out, args.overwrite, flag=True)
     if not args.overwrite and _up_to_date(out, scene, press, args.seed):
         print_result(out)  # stdout: the press folder alone, done before or now (scripts); the how on stderr
         say(f"{out}: already rendered from this scene and press, nothing to do")
@@ -258,36 +261,6 @@ def run(args: argparse.Namespace) -> int:
     print_result(path)
     say(f"rendered {what} to {path}")
     return 0
-
-
-def _check_replaceable(out: Path) -> None:
-    """Refuse an ``--out`` that is a file or a folder holding other things than a press, with or without
-    ``--overwrite`` (ConfigError naming it); a new path, an empty folder or a press folder pass.
-
-    Why: ``--overwrite`` replaced whatever was there with the rendered press: ``nlips render --out out/train50
-    --overwrite`` deleted a whole dataset, ``--out notes.txt --overwrite`` the user's file (``nlips solve --out``
-    refuses the same, tests/test_pipeline.py)."""
-    from ..core.errors import ConfigError
-    from ..core.press_folders import is_press_folder
-    from ..core.press_meta import SOURCE_SENSOR, press_source
-
-    if not (out.exists() or out.is_symlink()):
-        return
-    if out.is_dir() and is_press_folder(out) and press_source(out) == SOURCE_SENSOR:
-        # it said "rendered from a different scene, press or seed (...: an older nlipscalib rendered it)" and
-        # --overwrite then deleted the capture
-        raise ConfigError(
-            f"{out}: holds a press captured on a sensor (nlips capture), not a twin render; nothing is replaced, "
-            "even with --overwrite (a press cannot be rendered back): render into another --out"
-        )
-    if out.is_dir() and (is_press_folder(out) or not any(out.iterdir())):
-        return
-    if out.is_dir():
-        raise ConfigError(
-            f"{out}: a folder holding other things than a press (no meta.json); nothing is replaced, even with "
-            "--overwrite: choose another --out"
-        )
-    raise ConfigError(f"{out}: a file where a folder is needed (choose another --out, or move the file)")
 
 
 def _press_or_dome(provenance: dict | None, press: PressConfig | None) -> str:

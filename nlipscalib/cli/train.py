@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
             synthetic_share=args.synthetic_share,
             synthetic_reflectance=args.gel_reflectance,
         )
-    device = check_device(args.device)  # before the dataset loads: a machine without the GPU is told at once
+    device = check_device(args.device, flag=True)  # before the dataset loads: a machine without the GPU is told at once
     data = CalibrationDataset(args.dataset)
     if older := data.older_sampling():
         log.warning("%s", older)

@@ -35,7 +35,7 @@ import numpy as np
 from .. import __version__
 from .atomic import atomic_dir, write_json
 from .camera import Camera
-from .errors import CaptureError, ShapeError
+from .errors import PATH, CaptureError, ShapeError, check_kind
 from .imageio import png_size, read_png_bytes, write_png16
 from .leds import Led, Leds
 from .prefetch import prefetch_images
@@ -450,6 +450,7 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         and checked now, decoded on a thread started now (:func:`decode_in_background`), so that the caller's
         next work runs beside the decoding; the first read of the images waits for it
     """
+    check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
     if decode not in (True, False, "background"):
         raise ValueError(f"decode must be True, False or 'background', got {decode!r}")
     folder = Path(folder)

@@ -257,6 +257,19 @@ def options_named(option_of: dict[str, str]) -> Iterator[None]:
         raise ConfigError(f"{option_of.get(field, field)} {rest}") from None
 
 
+def said(name: str, value: object, flag: bool, quoted: bool = False) -> str:
+    """An option as its caller gave it: ``--device cuda`` on the command line (``flag``; ``quoted``: the value as
+    Python's repr, for a value that may hold spaces), ``device='cuda'`` in Python.
+
+    Why: the API's errors were worded for the command line, and a notebook's ``Predictor(device="cuda")`` was told
+    to "use --device cpu", a flag it has no way to give (s36-apileft). A config field's name in a frozen config's
+    own check is renamed to its flag by :func:`options_named` instead; this is for a message that names an option
+    with its value, and in its remedy too."""
+    if not flag:
+        return f"{name}={value!r}"
+    return f"--{name.replace('_', '-')} {value!r}" if quoted else f"--{name.replace('_', '-')} {value}"
+
+
 def digest(obj: Any) -> str:
     """Short stable hash of a config (dataclass or JSON-able mapping): what made a result.
 

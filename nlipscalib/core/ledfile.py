@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .atomic import write_json
-from .errors import CaptureError
+from .errors import PATH, CaptureError, check_kind
 from .leds import Led, Leds
 from .sensor_record import check_sensor_record
 
@@ -20,6 +20,11 @@ from .sensor_record import check_sensor_record
 def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
     """Write an LED file atomically: {"leds": [Led.to_dict() ...], ...extra}; ``extra`` holds the calibration's
     other keys (``sensor``, ``quality``, ...). Returns ``path``."""
+    check_kind(path, PATH, "path", "the LED file's path (str or Path)")
+    check_kind(leds, (list, tuple), "leds", "a list of Led (calibrate_leds(...).leds, read_led_file(path).leds)")
+    for i, led in enumerate(leds):
+        check_kind(led, Led, f"leds[{i}]", "an Led (nlipscalib.core.leds.Led)")
+    check_kind(extra, (dict, type(None)), "extra", "a dict of the file's other keys, or None")
     return write_json(path, {"leds": [led.to_dict() for led in leds]} | (extra or {}))
 
 

@@ -8,8 +8,8 @@ import logging
 from pathlib import Path
 
 from .atomic import TMP_PREFIX
-from .errors import CaptureError
-from .press_meta import META_FILE, REFERENCE_FOLDER, listed_files, read_meta
+from .errors import CaptureError, ConfigError
+from .press_meta import META_FILE, REFERENCE_FOLDER, SOURCE_SENSOR, listed_files, press_source, read_meta
 
 log = logging.getLogger(__name__)
 
@@ -17,6 +17,42 @@ log = logging.getLogger(__name__)
 def is_press_folder(folder: str | Path) -> bool:
     """True when ``folder`` holds a meta.json (complete press folders are written atomically)."""
     return (Path(folder) / META_FILE).is_file()
+
+
+def check_render_out(out: str | Path, overwrite: bool, flag: bool = False) -> None:
+    """Refuse a render's output ``out`` that is a file or a folder holding other things than a press, with or
+    without ``overwrite``, or an empty folder without it (ConfigError naming it and what to do); a new path, a
+    twin's press folder, or an empty folder with ``overwrite`` pass. ``flag``: the remedy worded for ``nlips
+    render`` (``--out``, ``--overwrite``), else for :func:`nlipscalib.sim.press.render_press` (``out_folder``,
+    ``overwrite=True``).
+
+    Why: ``--overwrite`` replaced whatever was there with the rendered press: ``nlips render --out out/train50
+    --overwrite`` deleted a whole dataset, ``--out notes.txt --overwrite`` the user's file (``nlips solve --out``
+    refuses the same, tests/test_pipeline.py); ``render_press`` into a folder of other things said only
+    "FileExistsError: already exists" after the whole render (s36-apileft)."""
+    out = Path(out)
+    option, again = ("--out", "--overwrite") if flag else ("out_folder", "overwrite=True")
+    if not (out.exists() or out.is_symlink()):
+        return
+    if out.is_dir() and is_press_folder(out) and press_source(out) == SOURCE_SENSOR:
+        # it said "rendered from a different scene, press or seed (...: an older nlipscalib rendered it)" and
+        # --overwrite then deleted the capture
+        raise ConfigError(
+            f"{out}: holds a press captured on a sensor (nlips capture), not a twin render; nothing is replaced, "
+            f"even with {again} (a press cannot be rendered back): render into another {option}"
+        )
+    if out.is_dir() and is_press_folder(out):
+        return
+    if out.is_dir() and not any(out.iterdir()):
+        if not overwrite:
+            raise ConfigError(f"{out}: exists and is not a press folder; choose another {option} or use {again}")
+        return
+    if out.is_dir():
+        raise ConfigError(
+            f"{out}: a folder holding other things than a press (no meta.json); nothing is replaced, even with "
+            f"{again}: choose another {option}"
+        )
+    raise ConfigError(f"{out}: a file where a folder is needed (choose another {option}, or move the file)")
 
 
 def find_presses(root: str | Path) -> list[Path]:

@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import __version__
 from .atomic import atomic_dir, write_json
-from .errors import CaptureError
+from .errors import PATH, CaptureError, check_kind
 from .formatfile import read_arrays, read_format_json
 from .imageio import save_npz
 from .surface_checks import non_unit_count
@@ -297,6 +297,8 @@ def save_reconstruction(
     """
     from concurrent.futures import ThreadPoolExecutor
 
+    check_kind(rec, Reconstruction, "rec", "a Reconstruction (a solve's result, load_reconstruction)")
+    check_kind(folder, PATH, "folder", "the output folder's path (str or Path)")
     folder = Path(folder)
     # "." has no name to write beside; any other folder stays as given, so that an error names it as the user did
     # (an absolute path named `--out bad/../ro/inf` "/home/.../bad/../ro/inf")
@@ -332,6 +334,7 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
     CaptureError naming the file: missing, unreadable or truncated, wrong format or version, missing
     arrays, wrong shapes or dtypes.
     """
+    check_kind(folder, PATH, "folder", "a reconstruction folder's path (str or Path)")
     folder = Path(folder)
     path, rpath = folder / RESULT_FILE, folder / REPORT_FILE
     if not path.is_file():

@@ -24,7 +24,7 @@ from ..core.errors import ConfigError, NlipsError
 from . import check, markdown
 from .plan import build_tasks
 from .provenance import machine, made_by, software
-from .runner import run_tasks
+from .runner import check_scheduler, run_tasks
 from .summary import dumps, evaluation_rows
 from .tasks import keeping_old
 
@@ -183,6 +183,22 @@ def _check_memory(tasks: list[Task], workers: int) -> None:
         worker_count(workers, 1, SOLVE_WHOLE_MEMORY, *max(sizes, key=lambda wh: wh[0] * wh[1]))
 
 
+def _check_guarded(workers: int, scheduler: str | None) -> None:
+    """ConfigError naming the script and line when the tasks would run in worker processes (``workers`` > 1, or a
+    ``local:N`` Dask cluster's) started from a script's top level outside ``if __name__ == "__main__":``
+    (:func:`nlipscalib.core.main_guard.check_main_guarded`, as ``solve_presses`` does).
+
+    Why: the spawned workers import the caller's script again and so ran its ``run_experiment`` again, each failing
+    in multiprocessing's bootstrapping traceback, and every task came back failed (s36-apileft)."""
+    from ..core.main_guard import check_main_guarded
+
+    local = check_scheduler(scheduler)
+    if scheduler is None and workers > 1:
+        check_main_guarded(f"running the experiment's tasks in {workers} processes (workers={workers})")
+    elif local is not None:
+        check_main_guarded(f"running the experiment's tasks on a local cluster of {local} processes ({scheduler})")
+
+
 def run_experiment(
     exp: Experiment,
     cfg: Any,
@@ -203,6 +219,7 @@ def run_experiment(
     Returns the report's JSON document (also written to ``report/results.json``).
     """
     start = time.perf_counter()
+    _check_guarded(workers, scheduler)
     tasks = keeping_old(exp.tasks(cfg, solver_options), keep_old)
     settings = run_settings(exp, cfg, size, solver_options)
     if workers > 1 and scheduler is None:  # the count asked for, said when it likely exceeds the memory available

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.config import check_count, to_mapping
 from ..core.errors import ConfigError
-from ..sim.indent import PressConfig
+from ..sim.indent import PressConfig, check_polar
 from ..sim.indenters import IndenterConfig
 from .tasks import SolveSpec, Task, calibration_id, digest, scene_key
 
@@ -88,6 +88,7 @@ class PressGrid:
         out = []
         for ind in indenters or self.indenters:
             for polar in self.polar_deg:
+                check_polar("presses.polar_deg", polar)  # named by the config's section, not PressConfig's field
                 for az in self.azimuth_deg:
                     for d in depth or self.depth:
                         p = PressConfig(indenter=ind, polar_deg=polar, azimuth_deg=az, depth=d)
@@ -154,8 +155,6 @@ def solve_dict(**fields) -> dict:
 def _check_press(scene: dict, press: dict) -> None:
     """ConfigError now, while planning, for a press its render would refuse after the reference was rendered
     (a place off the dome, a depth beyond the gel): the caller names the config file."""
-    from ..sim.press import check_polar
-
     check_polar("presses.polar_deg", press["polar_deg"])
     thickness = scene["dome"]["thickness"]
     if press["depth"] > thickness:

@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.camera import Camera, depth_to_points
-from ..core.errors import CaptureError, ConfigError, ShapeError
+from ..core.config import said
+from ..core.errors import PATH, CaptureError, ConfigError, ShapeError, check_kind
 from ..core.sensor_record import camera_response_of, response_table_of
 from ..core.sensor_response import CLIPPED_VALUE, linearise, undo_tone_curve
 from ..core.tolerances import (
@@ -38,6 +39,8 @@ from .torch_device import torch_threads
 
 if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it makes one
     from collections.abc import Sequence
+
+    import torch
 
     from ..core.reconstruction import Reconstruction
     from .model import LoadedModel
@@ -115,9 +118,10 @@ class Predictor:
         full_frame: bool = False,
         reference: np.ndarray | None = None,
     ):
+        check_kind(model_path, PATH, "model_path", "the model file's path (str or Path)")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
             raise ConfigError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
-        self.device = self._device(device, backend, full_frame)
+        self.device = predictor_device(device, backend, full_frame)
         self.full_frame = full_frame
         self.model = load_model(model_path)
         ref = self.model.reference
@@ -184,20 +188,6 @@ class Predictor:
         what every frame gives without depth."""
         depth = self.ref_depth.astype(np.float32)
         return depth, depth_to_points(depth, self.camera.rays).astype(np.float32)
-
-    @staticmethod
-    def _device(device: str, backend: str, full_frame: bool):
-        """The torch device, or None for the CPU without the whole-frame path (no torch needed then)."""
-        if device == "cpu" and not full_frame:
-            return None
-        if backend not in ("auto", "torch"):
-            raise ConfigError(
-                f"--backend {backend} runs on the CPU alone: --device {device}"
-                f"{' and --full-frame run' if full_frame else ' runs'} the PyTorch backend (--backend torch)"
-            )
-        from .torch_device import check_device
-
-        return check_device(device)
 
     def _warm_up(self) -> None:
         """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
@@ -404,6 +394,24 @@ class Predictor:
         frame.seconds = {**{k: v for k, v in seconds.items() if k != "total"}, "check": check}
         frame.seconds["total"] = seconds["total"] + check
         return frame
+
+
+def predictor_device(device: str, backend: str, full_frame: bool, flag: bool = False) -> torch.device | None:
+    """The torch device a :class:`Predictor` runs on, or None for the CPU without the whole-frame path (no torch
+    needed then); ConfigError for a backend that cannot run there. ``flag``: worded for the command line
+    (``--device cuda``, :func:`nlipscalib.core.config.said`); ``nlips infer`` and ``nlips live`` check their options so
+    before the Predictor is made."""
+    if device == "cpu" and not full_frame:
+        return None
+    if backend not in ("auto", "torch"):
+        full = f" and {'--full-frame' if flag else 'full_frame=True'} run" if full_frame else " runs"
+        raise ConfigError(
+            f"{said('backend', backend, flag)} runs on the CPU alone: {said('device', device, flag)}{full} the "
+            f"PyTorch backend ({said('backend', 'torch', flag)})"
+        )
+    from .torch_device import check_device
+
+    return check_device(device, flag)
 
 
 def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:

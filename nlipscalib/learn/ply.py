@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from ..core.errors import ShapeError
+from ..core.errors import PATH, ShapeError, check_kind
 
 
 def grid_faces(valid: np.ndarray) -> np.ndarray:
@@ -41,6 +41,7 @@ def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None =
     normals : (H, W, 3) float, unit, or None
     mesh : also write the grid triangles (:func:`grid_faces`) between neighbouring points
     """
+    check_kind(path, PATH, "path", "the .ply file's path (str or Path)")
     shapes = f"points {np.shape(points)}" + ("" if normals is None else f", normals {np.shape(normals)}")
     if np.ndim(points) != 3 or np.shape(points)[-1] != 3 or (normals is not None and normals.shape != points.shape):
         raise ShapeError(f"write_ply needs (H, W, 3) points (and normals of their shape), got {shapes}")

@@ -7,29 +7,35 @@ import contextlib
 from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
+from ..core.config import said
 from ..core.errors import ConfigError, require
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
     import torch
 
 
-def check_device(device: str) -> torch.device:
-    """The torch device ``device`` names ("cpu", "cuda", "cuda:1"), or ConfigError naming what is missing."""
-    torch = require("torch", "torch", f"--device {device}")
+def check_device(device: str, flag: bool = False) -> torch.device:
+    """The torch device ``device`` names ("cpu", "cuda", "cuda:1"), or ConfigError naming what is missing.
+
+    ``flag``: worded for the command line (``--device cuda``) rather than for a Python caller (``device='cuda'``),
+    as :func:`nlipscalib.core.config.said` does."""
+    torch = require("torch", "torch", said("device", device, flag))
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError) as exc:
-        raise ConfigError(f"--device {device!r}: not a torch device ({exc}); use cpu, cuda or cuda:N") from None
+        raise ConfigError(
+            f"{said('device', device, flag, quoted=True)}: not a torch device ({exc}); use cpu, cuda or cuda:N"
+        ) from None
     if dev.type == "cuda":
         if not torch.cuda.is_available():
             raise ConfigError(
-                f"--device {device}: torch {torch.__version__} sees no CUDA device (a CPU build, or no GPU here); "
-                "use --device cpu"
+                f"{said('device', device, flag)}: torch {torch.__version__} sees no CUDA device (a CPU build, or no "
+                f"GPU here); use {said('device', 'cpu', flag)}"
             )
         if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ConfigError(f"--device {device}: there are {torch.cuda.device_count()} CUDA device(s)")
+            raise ConfigError(f"{said('device', device, flag)}: there are {torch.cuda.device_count()} CUDA device(s)")
     elif dev.type != "cpu":
-        raise ConfigError(f"--device {device}: only cpu and cuda devices are supported")
+        raise ConfigError(f"{said('device', device, flag)}: only cpu and cuda devices are supported")
     return dev
 
 

@@ -70,7 +70,7 @@ class RandomSpec:
 def _check_values(spec: GridSpec | RandomSpec, ranges: bool) -> None:
     """Shared range checks of grid values (``ranges`` False) and random ranges (True): polar angles, depths,
     indenters."""
-    from .press import check_polar
+    from .indent import check_polar
 
     min_count = 2 if ranges else 1
     if not spec.indenters:

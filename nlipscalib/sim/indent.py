@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
+import numbers
 import threading
 
 import numpy as np
@@ -58,8 +60,30 @@ class PressConfig:
     """How far the indenter moves into the gel past first touch, mm (0 < depth <= dome thickness)."""
 
     def __post_init__(self):
-        if not self.depth > 0:
+        """Each field within its range, refused here in one ConfigError naming it (``polar_deg: must be in [0, 90)
+        deg ...``), not when the render reaches it: a script's ``PressConfig(polar_deg=200)`` was said to be "off the
+        dome" by the render, after its scene was set up (s36-apileft). The depth's upper bound is the scene's gel
+        thickness, checked by the render (:func:`deform_gel`)."""
+        if not isinstance(self.indenter, IndenterConfig):
+            raise ConfigError(f"indenter: must be an IndenterConfig, got {type(self.indenter).__name__}")
+        for name in ("polar_deg", "azimuth_deg", "spin_deg", "depth"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ConfigError(f"{name}: must be a number, got {value!r}")
+        check_polar("polar_deg", self.polar_deg)
+        for name in ("azimuth_deg", "spin_deg"):
+            if not math.isfinite(getattr(self, name)):
+                raise ConfigError(f"{name}: must be a finite angle in degrees, got {getattr(self, name)!r}")
+        if not self.depth > 0:  # also NaN
             raise ConfigError(f"press depth must be > 0 mm, got {self.depth}")
+
+
+def check_polar(where: str, value: float) -> float:
+    """``value`` a polar angle on the dome, in [0, 90) deg (``core.dome.dome_surface_point``'s limit: 90 deg is
+    the base rim, whose ray leaves the dome); else a ConfigError naming ``where`` (an option or spec key)."""
+    if not 0.0 <= value < 90.0:  # also NaN
+        raise ConfigError(f"{where}: must be in [0, 90) deg (90 is the dome's open base), got {value!r}")
+    return value
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

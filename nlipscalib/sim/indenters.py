@@ -87,6 +87,9 @@ class IndenterConfig:
             raise ConfigError(f"indenter.count must be >= 3, got {self.count}")
         if self.kind == "mesh" and not self.mesh:
             raise ConfigError("indenter kind 'mesh' needs indenter.mesh (path of an STL/OBJ/PLY file)")
+        if self.kind == "mesh" and (problem := mesh_path_problem(self.mesh)):
+            # here, not when the render reads it: a script's PressConfig is told at once, not minutes later
+            raise ConfigError(problem)
 
     @property
     def pose(self) -> str:
@@ -349,16 +352,25 @@ def with_mesh_beside(indenter: object, folder: Path) -> object:
     return indenter | {"mesh": str(folder / mesh)}
 
 
-def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
-    """Read a user's indenter mesh; it must be a closed solid (small holes are repaired, with a warning)."""
-    path = Path(cfg.mesh).expanduser()
+def mesh_path_problem(mesh: str | Path) -> str | None:
+    """What is wrong with ``mesh`` as an indenter mesh's path (a folder, no such file), naming it; None when it is
+    a file (its content is read and checked by the render, :func:`make_indenter`)."""
+    path = Path(mesh).expanduser()
     if path.is_dir():
-        raise ConfigError(f"indenter mesh {path}: a folder, not a mesh file (give one file: {', '.join(MESH_TYPES)})")
+        return f"indenter mesh {path}: a folder, not a mesh file (give one file: {', '.join(MESH_TYPES)})"
     if not path.is_file():
         # the shipped example named without its path (README: "under the installed package"): say where it is
         named_example = path.name in (EXAMPLE_MESH.name, EXAMPLE_MESH.stem)
         hint = f" (the example shipped with nlipscalib is {EXAMPLE_MESH}: --mesh takes a path)" if named_example else ""
-        raise ConfigError(f"indenter mesh {path}: no such file{hint}")
+        return f"indenter mesh {path}: no such file{hint}"
+    return None
+
+
+def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
+    """Read a user's indenter mesh; it must be a closed solid (small holes are repaired, with a warning)."""
+    path = Path(cfg.mesh).expanduser()
+    if problem := mesh_path_problem(cfg.mesh):  # checked when the config was made, and now: it may have gone since
+        raise ConfigError(problem)
     suffix = path.suffix.lower().lstrip(".")
     if suffix not in MESH_TYPES:
         raise ConfigError(f"indenter mesh {path}: unknown mesh type '.{suffix}' (use {', '.join(MESH_TYPES)})")

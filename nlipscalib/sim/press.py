@@ -11,6 +11,7 @@ effects, exposure, sensor noise), and writing. Exposure is chosen once per scene
 from __future__ import annotations
 
 import dataclasses
+import errno
 import functools
 import json
 import logging
@@ -21,8 +22,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.capture import write_press
-from ..core.errors import ConfigError
+from ..core.errors import PATH, ConfigError, check_kind
 from ..core.leds import tricolor_colors
+from ..core.press_folders import check_render_out, is_press_folder
 from .camera_effects import apply_lens
 from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
@@ -140,14 +142,6 @@ def press_seed(scene_seed: int, press_dict: dict | None) -> int:
     return int(np.random.SeedSequence([int(scene_seed), digest]).generate_state(1)[0])
 
 
-def check_polar(where: str, value: float) -> float:
-    """``value`` a polar angle on the dome, in [0, 90) deg (``core.dome.dome_surface_point``'s limit: 90 deg is
-    the base rim, whose ray leaves the dome); else a ConfigError naming ``where`` (an option or spec key)."""
-    if not 0.0 <= value < 90.0:  # also NaN
-        raise ConfigError(f"{where}: must be in [0, 90) deg (90 is the dome's open base), got {value!r}")
-    return value
-
-
 def render_identity() -> dict:
     """What renders here: ``{"libraries": {mitsuba, drjit: version}, "code": digest of sim/ and core/}``
     (core.libraries.RENDER_LIBRARIES, core.code_version.RENDER_CODE), recorded in a rendered press's provenance."""
@@ -253,17 +247,32 @@ def render_press(
     out_folder : path of the press folder to write
     seed : render and noise seed (default: derived from ``scene.render.seed`` and the press, so
         different presses -- and the undeformed dome -- never share a noise realisation)
-    overwrite : replace an existing folder
+    overwrite : replace an existing press folder (a twin's; one captured on a sensor, a file or a folder of other
+        things is a ConfigError, with or without it: :func:`nlipscalib.core.press_folders.check_render_out`)
     return_result : also return the noise-free RenderResult (for tests)
 
     Returns
     -------
     Path of the folder, or (Path, RenderResult) with ``return_result``
+
+    Raises
+    ------
+    FileExistsError
+        ``out_folder`` is a press folder already (another process's, published meanwhile, too) and not
+        ``overwrite``
     """
+    from .indent import PressConfig
     from .render.surface import render_surface
+    from .scene import SceneConfig
 
     if out_folder is None:
         raise ConfigError("render_press needs out_folder")
+    check_kind(scene, SceneConfig, "scene", "a SceneConfig (load_scene(...))")
+    check_kind(press, (PressConfig, type(None)), "press", "a PressConfig, or None for the undeformed dome")
+    check_kind(out_folder, PATH, "out_folder", "the press folder's path (str or Path)")
+    check_render_out(out_folder, overwrite)  # before the render: a folder of other things is never replaced
+    if not overwrite and is_press_folder(out_folder):  # said before the render, not after it (as atomic_dir would)
+        raise FileExistsError(errno.EEXIST, "a press folder already: overwrite=True renders it again", str(out_folder))
     # hashed before the mesh file is read: a mesh edited during the render leaves a stale hash, rendered again
     spec_hash = render_spec_hash(scene, press, seed)
     # 1. the surface: the undeformed dome, or the gel under the press

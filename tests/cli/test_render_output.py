@@ -222,3 +222,20 @@ def test_a_press_captured_on_a_sensor_is_never_replaced_by_a_render(tmp_path, mo
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nlips render: error: {out}: holds a press captured on a sensor"), err
     assert "even with --overwrite" in err[0] and (out / "led_01.png").exists()
+
+
+def test_a_press_file_out_of_range_is_one_line_before_the_render(tmp_path, capsys):
+    """PressConfig refuses polar_deg = 200 when made (it was refused by the render, after "rendering press ...")."""
+    spec = tmp_path / "press.toml"
+    spec.write_text("polar_deg = 200\n", encoding="utf-8")
+    assert main([*TINY, "--press-file", str(spec), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    said = f"nlips render: error: {spec}: polar_deg: must be in [0, 90) deg (90 is the dome's open base), got 200.0"
+    assert err == [said]
+    assert not (tmp_path / "p").exists()
+
+
+def test_a_missing_mesh_is_one_line_before_the_render(tmp_path, capsys):
+    assert main([*TINY, "--mesh", str(tmp_path / "nope.stl"), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(f"indenter mesh {tmp_path / 'nope.stl'}: no such file"), err

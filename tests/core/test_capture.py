@@ -687,3 +687,11 @@ def test_an_led_subset_of_anything_but_led_indices_is_one_clear_error(tmp_path):
         with pytest.raises(CaptureError, match=r"LED subset must list LED indices \(0-based integers\), got"):
             load_press(folder, led_subset=subset)
     assert len(load_press(folder, led_subset=np.array([0, 2])).leds) == 2  # NumPy's integers are indices too
+
+
+def test_load_press_of_another_kind_names_the_argument():
+    """load_press(3) failed with Python's own TypeError from inside pathlib."""
+    from nlipscalib.core.errors import ShapeError
+
+    with pytest.raises(ShapeError, match=r"folder must be a press folder's path \(str or Path\), got int 3"):
+        load_press(3)

@@ -206,3 +206,22 @@ def test_disk_falloff_is_disk_shading_without_psi_and_the_point_falloff_at_radiu
     np.testing.assert_array_equal(disk_falloff(pts, nrm, leds, 0.0), led_falloff(pts, nrm, leds))
     with pytest.raises(ConfigError):
         disk_falloff(pts, nrm, leds, -1.0)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ((3, []), r"path must be the LED file's path \(str or Path\), got int 3"),
+        (("leds.json", "leds"), "leds must be a list of Led"),
+        (("leds.json", [1, 2]), r"leds\[0\] must be an Led \(nlipscalib.core.leds.Led\), got int 1"),
+    ],
+)
+def test_save_leds_of_another_kind_names_the_argument(tmp_path, monkeypatch, args, message):
+    """save_leds(path, [1, 2]) failed with an AttributeError ('int' object has no attribute 'to_dict')."""
+    from nlipscalib.core.errors import ShapeError
+    from nlipscalib.core.ledfile import save_leds
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ShapeError, match=message):
+        save_leds(*args)
+    assert list(tmp_path.iterdir()) == []

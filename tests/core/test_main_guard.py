@@ -60,3 +60,17 @@ def test_solve_presses_in_processes_from_an_unguarded_script_is_refused_before_a
     assert "line 4: solving presses in 2 processes (workers=2) at the script's top level" in done.stderr
     assert "bootstrapping phase" not in done.stderr and "killed" not in done.stderr
     assert not (tmp_path / "press_a" / "nlips").exists()
+
+
+def test_run_experiment_in_processes_from_an_unguarded_script_is_refused_before_any_work(tmp_path):
+    """run_experiment's own worker pool (spawned: each worker imports the script again) had no check."""
+    script = (
+        "from pathlib import Path\nfrom nlipscalib.experiments.framework import run_experiment\n"
+        f"root = Path({str(tmp_path)!r})\n"
+        'run_experiment(None, None, root / "work", root / "report", size="quick", workers=2)\n'
+    )
+    done = _run_script(tmp_path, script)
+    assert done.returncode == 1
+    last = done.stderr.strip().splitlines()[-1]
+    assert "line 4: running the experiment's tasks in 2 processes (workers=2) at the script's top level" in last
+    assert not (tmp_path / "work").exists() and not (tmp_path / "report").exists()

@@ -337,3 +337,16 @@ def test_an_error_names_the_folder_as_given_not_its_absolute_path(tmp_path, monk
     monkeypatch.chdir(tmp_path / "here")
     save_reconstruction(_rec(), ".", overwrite=True)  # "." still has a name to write beside: the working folder's
     assert load_reconstruction(tmp_path / "here").shape == (4, 5)
+
+
+def test_save_and_load_of_another_kind_name_the_argument(tmp_path):
+    """save_reconstruction("x", folder) failed with an AttributeError from inside the write."""
+    from nlipscalib.core.errors import ShapeError
+
+    with pytest.raises(ShapeError, match="rec must be a Reconstruction .*got str 'x'"):
+        save_reconstruction("x", tmp_path / "r")
+    with pytest.raises(ShapeError, match="folder must be the output folder's path .*got NoneType"):
+        save_reconstruction(_rec(), None)
+    with pytest.raises(ShapeError, match="folder must be a reconstruction folder's path"):
+        load_reconstruction(1.5)
+    assert not (tmp_path / "r").exists()

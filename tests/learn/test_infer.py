@@ -1562,3 +1562,26 @@ def test_a_frame_of_another_kind_than_predict_or_predict_stored_takes_is_one_cle
         with pytest.raises(ShapeError, match=f"frame: {np.dtype(dtype)} values, not the stored frame's"):
             predictor.predict_stored(np.zeros((H, W, 3), dtype))
     assert predictor.predict(np.zeros((H, W, 3), np.float64)).normals.shape == (H, W, 3)  # any float: light
+
+
+@pytest.mark.parametrize(
+    ("options", "said", "not_said"),
+    [
+        ({"device": "tpu"}, "device='tpu': not a torch device", "--device"),
+        ({"device": "cuda", "backend": "onnx"}, "backend='onnx' runs on the CPU alone: device='cuda' runs", "--"),
+        ({"full_frame": True, "backend": "onnx"}, "device='cpu' and full_frame=True run", "--"),
+    ],
+)
+def test_a_predictors_device_errors_name_its_keywords(tmp_path, options, said, not_said):
+    """Predictor(device=...) was told "use --device cpu", a flag a Python caller cannot give; checked before the
+    model loads (none here)."""
+    with pytest.raises(ConfigError) as caught:
+        Predictor(tmp_path / "none.pt", **options)
+    assert said in str(caught.value) and not_said not in str(caught.value)
+
+
+def test_a_model_path_of_another_kind_is_one_error():
+    from nlipscalib.core.errors import ShapeError
+
+    with pytest.raises(ShapeError, match="model_path must be the model file's path"):
+        Predictor(3)

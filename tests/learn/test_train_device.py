@@ -118,3 +118,12 @@ def test_a_finished_model_of_another_device_is_reused_saying_which_device_made_i
     _as_if_trained_on(checkpoint_path(tmp_path / "net.pt"), "cuda")
     assert main([*args, "--no-progress", "--device", "cpu"]) == 0
     assert "trained on cuda, not cpu (another --out trains on cpu)" in capsys.readouterr().err
+
+
+@NO_CUDA
+def test_trains_device_error_names_its_keyword(tmp_path):
+    """From Python the keyword, not the flag: ``device='cuda'`` ... ``use device='cpu'``."""
+    from nlipscalib.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"device='cuda': torch .* sees no CUDA device .*use device='cpu'"):
+        train(tmp_path / "missing", CFG, tmp_path / "m.pt", device="cuda")

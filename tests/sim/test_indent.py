@@ -103,7 +103,6 @@ def test_shallow_press_leaves_far_gel_alone():
     [
         (PressConfig(polar_deg=85, depth=1.0), "base rim"),
         (PressConfig(IndenterConfig(kind="cube", size=8), polar_deg=80, depth=1.0), "base rim"),
-        (PressConfig(polar_deg=95, depth=1.0), "off the dome"),
         (PressConfig(depth=4.0), "thickness"),
     ],
 )
@@ -151,3 +150,29 @@ def test_one_pymeshlab_subdivision_at_a_time():
         assert worker.is_alive() and not done  # waiting for the lock, not inside pymeshlab
     worker.join(60)
     assert len(done) == 1 and len(done[0][1]) == 4  # one triangle split into four
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"polar_deg": 200}, r"polar_deg: must be in \[0, 90\) deg .*got 200"),
+        ({"polar_deg": -1.0}, r"polar_deg: must be in \[0, 90\) deg .*got -1.0"),
+        ({"polar_deg": float("nan")}, r"polar_deg: must be in \[0, 90\) deg .*got nan"),
+        ({"azimuth_deg": float("inf")}, "azimuth_deg: must be a finite angle in degrees, got inf"),
+        ({"spin_deg": float("nan")}, "spin_deg: must be a finite angle in degrees, got nan"),
+        ({"polar_deg": "20"}, "polar_deg: must be a number, got '20'"),
+        ({"depth": True}, "depth: must be a number, got True"),
+        ({"indenter": "sphere"}, "indenter: must be an IndenterConfig, got str"),
+    ],
+)
+def test_a_press_out_of_range_is_refused_when_made(fields, message):
+    """PressConfig(polar_deg=200) was refused by the render ("off the dome"), after the scene was set up."""
+    with pytest.raises(ConfigError, match=message):
+        PressConfig(**fields)
+
+
+def test_a_missing_mesh_file_is_refused_when_the_indenter_is_made(tmp_path):
+    with pytest.raises(ConfigError, match=f"indenter mesh {tmp_path / 'nope.stl'}: no such file"):
+        IndenterConfig(kind="mesh", mesh=str(tmp_path / "nope.stl"))
+    with pytest.raises(ConfigError, match="a folder, not a mesh file"):
+        IndenterConfig(kind="mesh", mesh=str(tmp_path))

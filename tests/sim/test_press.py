@@ -109,3 +109,59 @@ def test_only_a_mesh_press_hashes_its_file_content(tmp_path):
     assert render_spec_hash(scene, mesh) == first
     part.write_bytes(b"solid b\nendsolid b\n")
     assert render_spec_hash(scene, mesh) != first and press_seed(0, to_mapping(mesh)) == seed
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_folder_of_other_things_is_refused_before_the_render(scene, tmp_path, overwrite):
+    """It said "FileExistsError: already exists" after the render (and overwrite=True replaced the folder whole):
+    one ConfigError naming the folder and what to do, worded for a Python caller, nothing replaced."""
+    from nlipscalib.core.errors import ConfigError
+
+    out = tmp_path / "notes"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep me")
+    with pytest.raises(ConfigError, match="holding other things than a press") as caught:
+        render_press(scene, None, out, overwrite=overwrite)
+    assert str(out) in str(caught.value) and "choose another out_folder" in str(caught.value)
+    assert "--out" not in str(caught.value) and (out / "mine.txt").read_text() == "keep me"
+
+
+def test_a_press_folder_without_overwrite_is_said_before_the_render(scene, tmp_path, monkeypatch):
+    """FileExistsError (documented) naming the folder and the keyword, before the render (it came after it)."""
+    from nlipscalib.sim.render import surface
+
+    out = tmp_path / "p"
+    out.mkdir()
+    (out / "meta.json").write_text("{}")
+    monkeypatch.setattr(surface, "render_surface", lambda *a, **k: pytest.fail("rendered"))
+    with pytest.raises(FileExistsError, match="overwrite=True renders it again") as caught:
+        render_press(scene, None, out)
+    assert caught.value.filename == str(out)
+
+
+def test_an_empty_folder_needs_overwrite(scene, tmp_path):
+    from nlipscalib.core.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="exists and is not a press folder; choose another out_folder or use "):
+        render_press(scene, None, tmp_path)
+    notes = tmp_path / "notes.txt"
+    notes.write_text("x")
+    with pytest.raises(ConfigError, match="a file where a folder is needed"):
+        render_press(scene, None, notes, overwrite=True)
+
+
+@pytest.mark.parametrize(
+    ("spoilt", "message"),
+    [
+        ({"scene": 3}, "scene must be a SceneConfig"),
+        ({"press": {"depth": 1.0}}, "press must be a PressConfig, or None"),
+        ({"out_folder": 7}, "out_folder must be the press folder's path"),
+    ],
+)
+def test_arguments_of_another_kind_are_one_error_naming_them(scene, tmp_path, spoilt, message):
+    """They failed with Python's own AttributeError or TypeError from inside the render."""
+    from nlipscalib.core.errors import ShapeError
+
+    args = {"scene": scene, "press": None, "out_folder": tmp_path / "p"} | spoilt
+    with pytest.raises(ShapeError, match=message):
+        render_press(**args)
