@@ -63,7 +63,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")
     p.add_argument("--dwell", type=float, default=0.3, help="test: seconds each step stays lit (default 0.3)")
     p.add_argument("--level", type=int, default=64, help="test: brightness 0..255 (default 64)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=stopped_line)
+
+
+def stopped_line(args: argparse.Namespace) -> str:
+    """What ``nlips leds`` interrupted or terminated says it left (``cli._stopped``), not "finished work is kept,
+    run again to resume": it keeps no work.
+
+    Why: Ctrl-C during ``nlips leds PORT test`` (an LED that stayed dark, the operator stopping to look) ended with
+    "finished work is kept, run again to resume", as if a test went on from where it stopped."""
+    if args.action == "test":
+        return "the test stopped and switched the LEDs off; a test does not resume (run it again from LED 1)"
+    return "nothing to resume (the LEDs show what the board last latched)"
 
 
 def run(args: argparse.Namespace) -> int:
