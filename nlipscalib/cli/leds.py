@@ -18,6 +18,8 @@ import contextlib
 from typing import TYPE_CHECKING, TypeAlias
 
 if TYPE_CHECKING:  # named in hints only: pyserial is imported when a board is opened
+    import numpy as np
+
     from ..device.adalight import AdalightController
     from ..device.controller import LedController
 
@@ -215,6 +217,25 @@ def _info(leds: LedBoard, args: argparse.Namespace) -> int:
     return 0
 
 
+def _light_step(leds: LedBoard, frame: np.ndarray, name: str, port: str) -> None:
+    """Light one step of ``nlips leds test``; a board that reset meanwhile is a DeviceError naming the step.
+
+    Why: it ended with the driver's "... restored to the last acknowledged colours; retake any frame captured
+    since the previous command", a capture's advice, at a test whose likeliest cause is the LEDs' current
+    pulling the board's supply down as they light (s36 device walk: the firmware in simavr, reset mid-test)."""
+    from ..core.errors import DeviceError
+    from ..device.errors import BoardResetError
+
+    try:
+        leds.set_all(frame)
+    except BoardResetError as exc:
+        raise DeviceError(
+            f"{port}: the board reset as the test lit {name} ({exc.reason}): a board that resets as its LEDs light "
+            "is often browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, "
+            "Wiring); run the test again (a lower --level draws less)"
+        ) from None
+
+
 def _test(leds: LedBoard, args: argparse.Namespace) -> int:
     import time
 
@@ -228,7 +249,7 @@ def _test(leds: LedBoard, args: argparse.Namespace) -> int:
     times = []
     for name, frame in steps:
         start = time.perf_counter()
-        leds.set_all(frame)
+        _light_step(leds, frame, name, args.port)
         times.append(time.perf_counter() - start)
         if not leds.acknowledged:  # nothing to check: the frame went out, whether a board lit it or not
             print(f"{name} (sent; Adalight does not acknowledge)", flush=True)

@@ -316,3 +316,29 @@ def test_an_interrupted_leds_command_or_tone_curve_measurement_promises_no_resum
     for argv in (["leds", "virtual", "set", "1", "9", "9", "9"], ["calibrate-camera-response", "--out", "c.json"]):
         line = cli._stopped(parser.parse_args(argv))
         assert "run again to resume" not in line and line.startswith("nothing"), (argv, line)
+
+
+def test_a_board_that_resets_during_leds_test_is_one_line_naming_the_step(capsys, monkeypatch):
+    """It ended with the driver's "... retake any frame captured since the previous command", a capture's advice,
+    where a board resetting as its LEDs light is most often browning out."""
+    from nlipscalib.device import virtual_board
+
+    board, seen = VirtualBoard(3), []
+    real = virtual_board._COMMANDS["ALL"]
+
+    def all_command(b, args):
+        seen.append(1)
+        if len(seen) == 4:  # the first "all" step: the board reboots instead of lighting it
+            b.reset()
+            return None
+        return real(b, args)
+
+    monkeypatch.setitem(virtual_board._COMMANDS, "ALL", all_command)
+    assert main(["leds", board.url, "test", "--dwell", "0"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("WARNING")]
+    assert err == [
+        f"nlips leds: error: {board.url}: the board reset as the test lit all red (it printed its boot banner): a "
+        "board that resets as its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a "
+        "supply too weak: firmware/README.md, Wiring); run the test again (a lower --level draws less)"
+    ]
+    assert not board.latched.any()  # and the test left them dark
