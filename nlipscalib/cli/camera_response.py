@@ -441,7 +441,10 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         if cap is None or not getattr(source, "live", False):
             from ..core.errors import ConfigError
 
-            raise ConfigError(f"--camera {args.camera}: a live camera is needed (its exposure is stepped)")
+            raise ConfigError(
+                f"--camera {args.camera}: a live camera is needed (its exposure is stepped); images of the lit gel "
+                "taken at several exposures with the camera's own tool: --bracket FOLDER, without --port"
+            )
 
         def light():
             colours = np.zeros((controller.n_leds, 3), np.uint8)
