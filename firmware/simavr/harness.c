@@ -10,12 +10,13 @@
 //   drop N         lose the next N lines the board sends: "OK drop"
 //   noise HEX      put raw bytes on the line to the host: "OK noise"
 //   unplug MS      remove the port for MS ms, then recreate it and power-cycle the MCU: "OK unplug"
-//   quit
+//   quit           also Ctrl-C, SIGTERM or the end of stdin: the link is removed and the harness exits 0
 #define _GNU_SOURCE
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -206,6 +207,14 @@ static void handle_command(char *cmd) {
     fflush(stdout);
 }
 
+// Ctrl-C or SIGTERM of the harness: leave the loop and remove the link, as `quit` does. Killed by the default
+// action instead, it left LINK pointing at a pseudo-terminal number the system gives to the next terminal opened.
+static volatile sig_atomic_t stop_requested;
+static void request_stop(int signum) {
+    (void)signum;
+    stop_requested = 1;
+}
+
 int main(int argc, char **argv) {
     if (argc != 3) {
         fprintf(stderr, "usage: %s FIRMWARE.elf LINK\n", argv[0]);
@@ -236,13 +245,18 @@ int main(int argc, char **argv) {
     // powered for a while would find it; bytes sent before that would be lost, as on real hardware.
     for (long i = 0; i < 20000000L && !(avr->data[UCSR0B_ADDR] & (1 << RXEN0_BIT)); i++) avr_run(avr);
     open_port();
+    struct sigaction on_stop;
+    memset(&on_stop, 0, sizeof on_stop);
+    on_stop.sa_handler = request_stop;  // no SA_RESTART: poll() returns at once with EINTR
+    sigaction(SIGINT, &on_stop, NULL);
+    sigaction(SIGTERM, &on_stop, NULL);
     printf("READY %s\n", ptsname(master));
     fflush(stdout);
 
     char cmd[1024];
     size_t cmd_len = 0;
     int sleeping_runs = 0;
-    for (;;) {
+    while (!stop_requested) {
         if (unplugged_until) {  // no power: the MCU does not run
             if (now_s() < unplugged_until) {
                 usleep(2000);

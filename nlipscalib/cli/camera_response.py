@@ -49,6 +49,9 @@ halfway round, so that the pairs light pixels alike (neighbours on a ring) and u
 SHOWN_MOVE = 0.01
 """A --bracket folder's estimated time is named in the line when it moved from the one named by more than this
 (the others moved by the estimate's noise)."""
+STOPPED = "nothing was written (a tone curve is measured from the whole bracket): run it again"
+"""What ``nlips calibrate-camera-response`` interrupted or terminated says it left (``cli._stopped``): it writes its
+curve once, at the end, so "finished work is kept, run again to resume" promised a resume it does not do."""
 DarkFrame = tuple
 """A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
 None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
@@ -133,7 +136,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
     emu.add_argument("--spp", type=int, help="emulated render samples per pixel (default: the scene's)")
     emu.add_argument("--seed", type=int, default=0, help="emulated sensor noise seed (default 0)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=STOPPED)
 
 
 def exposures_of(text: str | None) -> tuple[float, ...]:
@@ -438,7 +441,10 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         if cap is None or not getattr(source, "live", False):
             from ..core.errors import ConfigError
 
-            raise ConfigError(f"--camera {args.camera}: a live camera is needed (its exposure is stepped)")
+            raise ConfigError(
+                f"--camera {args.camera}: a live camera is needed (its exposure is stepped); images of the lit gel "
+                "taken at several exposures with the camera's own tool: --bracket FOLDER, without --port"
+            )
 
         def light():
             colours = np.zeros((controller.n_leds, 3), np.uint8)

@@ -25,6 +25,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
+from ..core.errors import DeviceError
 from ..core.shell_words import shell_word
 from ..progress import bars_enabled, print_result, say
 from .camera_response import TONE_CURVE_CHOICES
@@ -582,6 +583,21 @@ def stopped_line(args: argparse.Namespace) -> str:
     return f"session {args.out}: {len(done)} of {presses + 1} folders captured ({names or 'none'}); {resume}"
 
 
+def with_session_line(exc: DeviceError, args: argparse.Namespace) -> DeviceError:
+    """A board or port error that stopped a session with folders already captured, with the session line a
+    Ctrl-C prints (:func:`stopped_line`): what is kept and the folder the same command, run again, starts with.
+
+    Why: a board unplugged (or gone silent) at press 5 of 10 ended with "the board disconnected ... and did not
+    come back within 5 s" alone; the operator did not know that the four presses were kept and that the same
+    command resumes at press_0005, once the board is back, and started the session again in a new folder."""
+    from ..device.session import captured_folders
+
+    presses = args.presses if args.presses is not None else DEFAULTS["presses"]
+    if not captured_folders(args.out, presses):  # nothing kept: the error alone says what to fix
+        return exc
+    return DeviceError(f"{exc}; {stopped_line(args)}")
+
+
 def _warn_beyond(out: Path, status: dict) -> list[str]:
     """Warn about press folders in the session ``out`` that this run did not capture or keep (a run with fewer
     ``--presses`` than an earlier one); returns their names.
@@ -615,7 +631,10 @@ def run(args: argparse.Namespace) -> int:
     check_not_in_press(Path(args.out), "capture the session")  # before the sensor (or its emulator) starts
     t0 = time.perf_counter()
     with claim_session(args.out):  # another capture writing the folder: refused before the sensor starts
-        status = _run_emulated(args) if args.emulate else _run_device(args)
+        try:
+            status = _run_emulated(args) if args.emulate else _run_device(args)
+        except DeviceError as exc:
+            raise with_session_line(exc, args) from exc
     for name, rec in status.items():
         if rec == "kept":
             say(f"{name}: kept (already captured)")

@@ -18,6 +18,8 @@ import contextlib
 from typing import TYPE_CHECKING, TypeAlias
 
 if TYPE_CHECKING:  # named in hints only: pyserial is imported when a board is opened
+    import numpy as np
+
     from ..device.adalight import AdalightController
     from ..device.controller import LedController
 
@@ -63,7 +65,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")
     p.add_argument("--dwell", type=float, default=0.3, help="test: seconds each step stays lit (default 0.3)")
     p.add_argument("--level", type=int, default=64, help="test: brightness 0..255 (default 64)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=stopped_line)
+
+
+def stopped_line(args: argparse.Namespace) -> str:
+    """What ``nlips leds`` interrupted or terminated says it left (``cli._stopped``), not "finished work is kept,
+    run again to resume": it keeps no work.
+
+    Why: Ctrl-C during ``nlips leds PORT test`` (an LED that stayed dark, the operator stopping to look) ended with
+    "finished work is kept, run again to resume", as if a test went on from where it stopped."""
+    if args.action == "test":
+        return "the test stopped and switched the LEDs off; a test does not resume (run it again from LED 1)"
+    return "nothing to resume (the LEDs show what the board last latched)"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -204,6 +217,25 @@ def _info(leds: LedBoard, args: argparse.Namespace) -> int:
     return 0
 
 
+def _light_step(leds: LedBoard, frame: np.ndarray, name: str, port: str) -> None:
+    """Light one step of ``nlips leds test``; a board that reset meanwhile is a DeviceError naming the step.
+
+    Why: it ended with the driver's "... restored to the last acknowledged colours; retake any frame captured
+    since the previous command", a capture's advice, at a test whose likeliest cause is the LEDs' current
+    pulling the board's supply down as they light (s36 device walk: the firmware in simavr, reset mid-test)."""
+    from ..core.errors import DeviceError
+    from ..device.errors import BoardResetError
+
+    try:
+        leds.set_all(frame)
+    except BoardResetError as exc:
+        raise DeviceError(
+            f"{port}: the board reset as the test lit {name} ({exc.reason}): a board that resets as its LEDs light "
+            "is often browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, "
+            "Wiring); run the test again (a lower --level draws less)"
+        ) from None
+
+
 def _test(leds: LedBoard, args: argparse.Namespace) -> int:
     import time
 
@@ -217,7 +249,7 @@ def _test(leds: LedBoard, args: argparse.Namespace) -> int:
     times = []
     for name, frame in steps:
         start = time.perf_counter()
-        leds.set_all(frame)
+        _light_step(leds, frame, name, args.port)
         times.append(time.perf_counter() - start)
         if not leds.acknowledged:  # nothing to check: the frame went out, whether a board lit it or not
             print(f"{name} (sent; Adalight does not acknowledge)", flush=True)

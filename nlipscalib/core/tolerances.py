@@ -61,6 +61,11 @@ solved on to "no pixel could be reconstructed ... dead LEDs [1]"), and the solve
 ``sensor.black_level`` is not the sensor's (a dark frame of zeros added 1.6 % of full scale to every image and
 moved the twin's cube press from 0.42 to 0.72 deg without a word), and the solve is warned about. The twin's dark
 frames: within 1e-4 of it."""
+DARK_PEDESTAL_SPREAD = 0.5
+"""A dark frame above the black level by more than :data:`DARK_FRAME_OFFSET` whose gel samples spread (5th to 95th
+percentile) less than this share of that offset is even, as a camera's undeclared black level (pedestal) is: the
+refusal names ``--black-level`` first (an LED left lit or room light falls off across the dome by more than its
+own level; the twin's 64-DN pedestal read as black level 0 spreads 0.09 of it, noise, at 160x120)."""
 NORMAL_EPS = 1e-9
 """Norms below this are treated as zero when normalising (float64 vectors: an LED's direction, a LUT bin's mean
 normal, a radiosity patch's area-weighted normal; any real one is many orders of magnitude longer, so the

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from ..core.errors import DeviceError
 from .controller import _check_colours, _check_index
-from .errors import DeviceDisconnectedError
+from .errors import DeviceDisconnectedError, WrongDeviceError
 from .port import BAUD_RATE, _serial, check_baudrate, open_port
 
 if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named for the hints only
@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 MAGIC = b"Ada"
 BOOT_BANNER = b"Ada\n"
+NLIPS_BOOT = b"!BOOT fw="
+"""How the nlips LED firmware's boot banner begins (docs/protocol.md): such a board ignores Adalight frames."""
 WS2812_US_PER_LED = 30.0
 """Time to clock one LED's 24 bits out at 800 kHz, microseconds."""
 
@@ -129,6 +131,7 @@ class AdalightController:
             if BOOT_BANNER in seen:
                 self._port.reset_input_buffer()
                 return
+            self._refuse_nlips_board(seen)
         if seen:  # bytes but no banner: what a UART at another rate makes of it
             log.warning(
                 "%s: %d bytes but no 'Ada' banner within %g s: is the sketch's line rate %d baud (--baud)? "
@@ -140,6 +143,22 @@ class AdalightController:
             )
             return
         log.warning("%s: no 'Ada' banner within %g s; sending frames anyway", self.url, timeout)
+
+    def _refuse_nlips_board(self, seen: bytes) -> None:
+        """WrongDeviceError once ``seen`` holds the nlips LED firmware's whole boot banner.
+
+        Why: ``--adalight`` on a board flashed with ``firmware/`` waited 3 s, warned "N bytes but no 'Ada' banner:
+        is the sketch's line rate ... (--baud)?" and sent frames the firmware ignores (no ``>`` start marker), so
+        a capture took frames of dark LEDs."""
+        start = seen.find(NLIPS_BOOT)
+        end = seen.find(b"\n", start)
+        if start < 0 or end < 0:
+            return
+        banner = seen[start + 1 : end].split(b"*")[0].decode("ascii", "replace")
+        raise WrongDeviceError(
+            f"{self.url}: the board runs the nlips LED firmware ({banner}), not Adalight: drop --adalight (the "
+            "nlips protocol acknowledges every change and reads the LEDs back)"
+        )
 
     def frame_time_s(self) -> float:
         """Transmission (10 bits per byte) plus WS2812 write time of one frame, s."""

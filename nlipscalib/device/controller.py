@@ -469,7 +469,8 @@ class LedController:
         if self.on_reset == "raise":
             raise BoardResetError(
                 f"{self.url}: board reset detected ({reason}). The LEDs were dark meanwhile and have been restored "
-                "to the last acknowledged colours; retake any frame captured since the previous command"
+                "to the last acknowledged colours; retake any frame captured since the previous command",
+                reason,
             )
 
 

@@ -43,7 +43,14 @@ class BoardError(DeviceError):
 
 
 class BoardResetError(DeviceError):
-    """The board rebooted during the session (its LEDs went dark; frames taken meanwhile may be wrong)."""
+    """The board rebooted during the session (its LEDs went dark; frames taken meanwhile may be wrong).
+
+    ``reason`` says how it showed (its boot banner, NOSESSION, unplugged and back), for callers that word their
+    own line (``nlips leds test``: the step it reset at)."""
+
+    def __init__(self, message: str, reason: str = ""):
+        super().__init__(message)
+        self.reason = reason
 
 
 class DeviceDisconnectedError(DeviceError):

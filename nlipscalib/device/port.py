@@ -17,6 +17,8 @@ BAUD_RATE = 115200
 every command that opens the LED port (``--baud``)."""
 READ_SLICE_S = 0.02
 """Longest single blocking read, so deadlines are checked often."""
+NETWORK_SCHEMES = ("socket://", "rfc2217://")
+"""URL schemes of an LED board behind a network serial server; its refusal names the server, not a cable."""
 
 
 def _serial():
@@ -128,6 +130,13 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
         )
     if code == errno.ENOENT or "no such" in str(exc).lower():
         return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
+    if url.startswith(NETWORK_SCHEMES):
+        # pyserial says "Could not open port URL: [Errno 111] Connection refused": the URL twice, no way out
+        reason = str(exc).removeprefix(f"Could not open port {url}: ")
+        return DeviceError(
+            f"{url}: could not connect ({reason}): is the serial server (ser2net, an RFC 2217 server, esp-link) "
+            "running at this host and port, and reachable from here?"
+        )
     return DeviceError(f"{url}: could not open the port: {exc}")
 
 

@@ -293,7 +293,8 @@ def capture_press(
         if attempt == cfg.max_retakes:
             raise CaptureError(
                 f"{folder}: the object kept moving ({moved[-1]:.2%} of the pixels changed in the last of "
-                f"{attempt + 1} attempts); hold it still, or raise movement_threshold"
+                f"{attempt + 1} attempts); hold it still, or raise the pixel change counted as movement "
+                f"(`nlips capture --movement-threshold`, SessionConfig.movement_threshold: {cfg.movement_threshold:g})"
             )
         operator.retake(index, f"the object moved ({moved[-1]:.2%} of the pixels changed)")
     provenance = dict(rig.provenance) | {

@@ -179,3 +179,19 @@ def test_unplug_and_reconnect_resends_the_frame(tmp_path):
         leds.reconnect_s = 0.2
         with pytest.raises(DeviceDisconnectedError, match="did not come back within 0.2 s"):
             leds.off()
+
+
+def test_adalight_on_a_board_running_the_nlips_firmware_is_one_line_naming_it(capsys):
+    """`--adalight` on a board flashed with firmware/ waited 3 s, warned "no 'Ada' banner: is the sketch's line
+    rate ...?" and sent frames the firmware ignores: a capture took its frames with the LEDs dark."""
+    from nlipscalib.cli import main
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(12)  # the nlips protocol; prints its boot banner when the port opens, as an Uno does
+    assert main(["leds", board.url, "test", "--adalight", "12", "--dwell", "0"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == (
+        f"nlips leds: error: {board.url}: the board runs the nlips LED firmware (BOOT fw=1.0.0-virtual proto=1 "
+        f"leds=12 sid={board.session_id}), not Adalight: drop --adalight (the nlips protocol acknowledges every "
+        "change and reads the LEDs back)"
+    )

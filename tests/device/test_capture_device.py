@@ -94,6 +94,28 @@ def test_a_board_unplugged_mid_capture_is_reported_as_such(tmp_path, capsys, mon
     assert (out / "reference").is_dir() and not (out / "press_0001").exists()
 
 
+def test_a_board_lost_mid_session_says_what_is_kept_and_the_same_command_resumes(
+    tmp_path, capsys, monkeypatch, impatient
+):
+    """The board unplugged at press 2 of 2: the error line ended at "did not come back within 5 s", saying nothing
+    of the reference and press 1 kept nor that the same command, run again once the board is back, goes on."""
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, 2 * SEQUENCE + 4, lambda b: b.unplug())  # mid-way through press 2
+    out, camera = tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, frames_folder(tmp_path, 2), camera, out, 2)) == 2
+    (line,) = errors(capsys.readouterr().err)
+    assert line.startswith(f"nlips capture: error: {board.url}: the board disconnected (")
+    assert line.endswith(
+        f"; session {out}: 2 of 3 folders captured (reference, press_0001); run again to resume from press_0002"
+    )
+    monkeypatch.undo()  # the board back, as plugged in again
+    again = VirtualBoard(12)
+    assert main(capture_args(again.url, frames_folder(tmp_path, 0, name="later"), camera, out, 2)) == 0
+    err = capsys.readouterr().err
+    assert "reference: kept" in err and "press_0001: kept" in err and "press_0002: captured" in err
+    assert (out / "press_0002" / "meta.json").is_file()
+
+
 def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path, capsys, monkeypatch, impatient):
     """Reported as "no valid answer to OFF after 4 tries of 1 s each" after 8.9 s: the clean-up's OFF waited its
     own 4 tries after ALL had failed."""
@@ -102,7 +124,10 @@ def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path
     args = capture_args(board.url, frames_folder(tmp_path, 1), camera_file(tmp_path), tmp_path / "s", 1)
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert errors(err) == [f"nlips capture: error: {board.url}: no valid answer to ALL after 4 tries of 0.2 s each"]
+    assert errors(err) == [
+        f"nlips capture: error: {board.url}: no valid answer to ALL after 4 tries of 0.2 s each; session "
+        f"{tmp_path / 's'}: 1 of 2 folders captured (reference); run again to resume from press_0001"
+    ]
 
 
 def _led_file(path, leds, camera_path):

@@ -3,6 +3,7 @@
 Needs gcc-avr, avr-libc and simavr (setup.sh); skips without them, fails when NLIPS_REQUIRE_DEVICE_TOOLS=1.
 """
 
+import signal
 import subprocess
 
 import numpy as np
@@ -70,3 +71,20 @@ def test_missing_tools_skip_or_fail_on_request(monkeypatch):
     monkeypatch.setenv(ledboards.REQUIRE_ENV, "1")
     with pytest.raises(pytest.fail.Exception, match="NLIPS_REQUIRE_DEVICE_TOOLS=1"):
         ledboards.require_device_tools()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_the_harness_stopped_by_ctrl_c_or_sigterm_removes_its_link(tmp_path, signum):
+    """Ctrl-C of `build/simavr-harness ... /tmp/ttyNLIPS` (firmware/README.md: run in a terminal of its own) killed
+    it and left the link pointing at a pseudo-terminal number the system hands to the next terminal opened, where
+    `nlips leds /tmp/ttyNLIPS` would then write."""
+    elf, harness = firmware_build()
+    link = tmp_path / "ttyNLIPS"
+    board = SimavrUnderTest(elf, harness, link)
+    try:
+        assert link.is_symlink()
+        board.proc.send_signal(signum)
+        assert board.proc.wait(5) == 0
+        assert not link.is_symlink() and not link.exists()
+    finally:
+        board.close()

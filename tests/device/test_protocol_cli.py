@@ -283,3 +283,62 @@ def test_adalight_warnings_name_the_port_as_typed(capsys, caplog):
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert warnings and all(w.startswith("virtual: ") for w in warnings), warnings
     assert "nlipsemu://" not in caplog.text
+
+
+def test_ctrl_c_during_leds_test_switches_the_leds_off_and_promises_no_resume(capsys, monkeypatch):
+    """It ended "interrupted; finished work is kept, run again to resume", as if a test went on where it stopped."""
+    import time
+
+    board = VirtualBoard(3)
+    real_sleep = time.sleep
+
+    def ctrl_c_at_the_dwell(seconds):
+        if seconds == 0.125:  # the test's dwell after LED 2 lit; other sleeps (the board's, pyserial's) run
+            if board.latched[1].any():
+                raise KeyboardInterrupt
+        real_sleep(seconds)
+
+    monkeypatch.setattr(time, "sleep", ctrl_c_at_the_dwell)
+    assert main(["leds", board.url, "test", "--dwell", "0.125"]) == 130
+    out, err = capsys.readouterr()
+    assert out.splitlines()[-1].startswith("LED 2: lit")
+    assert err.strip().splitlines()[-1] == (
+        "nlips leds: interrupted; the test stopped and switched the LEDs off; a test does not resume (run it again "
+        "from LED 1)"
+    )
+    assert not board.latched.any()
+
+
+def test_an_interrupted_leds_command_or_tone_curve_measurement_promises_no_resume():
+    from nlipscalib import cli
+
+    parser = cli.build_parser()
+    for argv in (["leds", "virtual", "set", "1", "9", "9", "9"], ["calibrate-camera-response", "--out", "c.json"]):
+        line = cli._stopped(parser.parse_args(argv))
+        assert "run again to resume" not in line and line.startswith("nothing"), (argv, line)
+
+
+def test_a_board_that_resets_during_leds_test_is_one_line_naming_the_step(capsys, monkeypatch):
+    """It ended with the driver's "... retake any frame captured since the previous command", a capture's advice,
+    where a board resetting as its LEDs light is most often browning out."""
+    from nlipscalib.device import virtual_board
+
+    board, seen = VirtualBoard(3), []
+    real = virtual_board._COMMANDS["ALL"]
+
+    def all_command(b, args):
+        seen.append(1)
+        if len(seen) == 4:  # the first "all" step: the board reboots instead of lighting it
+            b.reset()
+            return None
+        return real(b, args)
+
+    monkeypatch.setitem(virtual_board._COMMANDS, "ALL", all_command)
+    assert main(["leds", board.url, "test", "--dwell", "0"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("WARNING")]
+    assert err == [
+        f"nlips leds: error: {board.url}: the board reset as the test lit all red (it printed its boot banner): a "
+        "board that resets as its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a "
+        "supply too weak: firmware/README.md, Wiring); run the test again (a lower --level draws less)"
+    ]
+    assert not board.latched.any()  # and the test left them dark

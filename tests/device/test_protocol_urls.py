@@ -85,3 +85,20 @@ def test_a_serial_device_keeps_dtr_up_when_closed_so_an_uno_is_not_reset_by_the_
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_a_socket_url_with_no_server_is_one_line_naming_the_server(capsys):
+    """It said "socket://127.0.0.1:P: could not open the port: Could not open port socket://127.0.0.1:P: [Errno
+    111] Connection refused": the URL twice, and nothing on what to check."""
+    from nlipscalib.cli import main
+
+    with socket.socket() as probe:  # a port nothing listens on: bound here, closed before the command connects
+        probe.bind(("127.0.0.1", 0))
+        url = f"socket://127.0.0.1:{probe.getsockname()[1]}"
+    assert main(["leds", url, "info"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"nlips leds: error: {url}: could not connect (") and err.count(url) == 1, err
+    assert err.endswith(
+        "is the serial server (ser2net, an RFC 2217 server, esp-link) running at this host and port, "
+        "and reachable from here?"
+    ), err

@@ -215,6 +215,7 @@ def test_a_camera_that_is_no_live_one_is_refused_before_a_bracket(tmp_path, caps
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"--camera {frames}: a live camera is needed" in err[0], err
+    assert err[0].endswith("taken at several exposures with the camera's own tool: --bracket FOLDER, without --port")
     assert not board.latched.any() and not out.exists()
     board.close()
 

@@ -204,3 +204,28 @@ def test_a_gamma_encoded_dark_frame_above_the_black_level_is_put_down_to_the_ton
     message, refused = dark_frame_fault(load_press(linear))
     assert refused and "not a dark frame" in message and "(an LED lit, or room light?)" in message
     assert "tone curve" not in message and "not linear" not in message
+
+
+def test_an_even_dark_frame_above_the_black_level_names_the_cameras_black_level(tmp_path, capsys):
+    """A camera with a pedestal, captured at the default ``--black-level 0``, was refused press by press with "not a
+    dark frame ... (an LED lit, or room light?); capture it with every LED off", which the lab had done (s36 device
+    walk). An even offset now names the black level to declare; an LED image as the dark frame keeps the old line."""
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    folder = synth.make_press(tmp_path / "pedestal", "sphere")
+    for image in folder.glob("*.png"):  # a pedestal of 2048 on every value, meta.json's black level left at 256
+        write_png16(image, read_png16(image) + np.uint16(2048))
+    recorded_anew(folder)
+    message, refused = dark_frame_fault(load_press(folder))
+    bits, dn = synth.RESPONSE.bit_depth, 256 + 2048
+    assert refused and "black level 256" in message and "even across the gel" in message, message
+    assert f"`nlips capture --black-level {dn:.4g}`, in the camera's {bits}-bit values)" in message, message
+    assert main(["solve", str(folder), "--no-figures"]) == 2
+    assert "--black-level" in capsys.readouterr().err
+
+    lit = synth.make_press(tmp_path / "lit", "sphere")
+    write_png16(lit / "dark.png", read_png16(lit / "led_01.png"))
+    recorded_anew(lit)
+    message, refused = dark_frame_fault(load_press(lit))
+    assert refused and "(an LED lit, or room light?); capture it with every LED off" in message
+    assert "--black-level" not in message
