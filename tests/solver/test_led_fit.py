@@ -2,6 +2,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy import ndimage
 from scipy.optimize._numdiff import approx_derivative
 
 from nlipscalib.core.leds import Led
@@ -76,3 +77,33 @@ def test_an_led_without_a_usable_sample_is_held_at_its_start_and_left_out_of_the
     assert np.isnan(std).all() and np.isnan(rms)
     assert all(np.isfinite(f[2]) for f in fitted[:2])
     assert summed_squares(fitted) == fitted[0][2] ** 2 + fitted[1][2] ** 2
+
+
+def test_the_calibration_leaves_out_the_gels_outline_on_a_view_past_it_and_nothing_on_a_gel_filling_view(tmp_path):
+    """The outline pixels of a wide view are covered by the gel only in part: their light is below the image model's
+    (a whole pixel of surface), and the reflectance profile's plain squared residual, a tenth theirs, chose 1.06x the
+    true reflectance and moved the LED disks 0.056 mm along the camera's axis (twin, s36-diskfit). Samples are taken
+    from inside the outline only; a gel-filling view keeps every pixel of its stride (the frame's border is no
+    outline), so its calibration is unchanged."""
+    from nlipscalib.core import Camera, load_press
+    from nlipscalib.solver.led_fit import capture_samples, gel_outline
+
+    from . import synth
+
+    wide = Camera.from_fov(64, 48, 175.0, "fisheye", (0.05, -0.01, 0.0, 0.0))  # past the dome's base (78.7 deg)
+    press = load_press(synth.make_press(tmp_path / "wide", "none", cam=wide))
+    valid = np.isfinite(press.reference.depth)
+    assert 0.3 < valid.mean() < 0.95, valid.mean()
+    *_, sel = capture_samples(press, press, 12, 1)
+    outline = valid & ~ndimage.binary_erosion(valid, np.ones((3, 3)), border_value=1)
+    assert outline.sum() > 50 and not (sel & outline).any()
+    np.testing.assert_array_equal(sel, valid & ~outline)
+    np.testing.assert_array_equal(gel_outline(valid), outline)
+
+    filling = load_press(synth.make_press(tmp_path / "filling", "none", size=(64, 48)))
+    full = np.isfinite(filling.reference.depth)
+    assert full.all()
+    *_, sel = capture_samples(filling, filling, 12, 2)
+    grid = np.zeros_like(full)
+    grid[::2, ::2] = True
+    np.testing.assert_array_equal(sel, grid)
