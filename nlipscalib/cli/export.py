@@ -83,5 +83,5 @@ def parity_deg(model: LoadedModel, onnx_path: Path) -> float:
     rows, cols = rows[pick], cols[pick]
     pixel = np.stack([cols, rows], axis=1)  # (u, v) = (column, row)
     rgb = ref["tricolor"][rows, cols].astype(np.float32)
-    x = np.concatenate([model_inputs(pixel, rgb * s) for s in (0.9, 1.0, 1.1)])
+    x = np.concatenate([model_inputs(pixel, rgb * s, model.input_reference) for s in (0.9, 1.0, 1.1)])
     return checked_parity(model, onnx_path, x, threads=1)

@@ -35,10 +35,12 @@ from .checkpoint import (
 )
 from .dataset import INDEX_FILE, CalibrationDataset
 from .model import (
+    COLOUR_INPUTS,
     PAPER_DROPOUT,
     PAPER_HIDDEN,
     build_net,
     cosine_loss,
+    input_reference,
     model_inputs,
     save_model,
     set_colour_normalisation,
@@ -139,6 +141,14 @@ class TrainConfig:
     seeds (docs/experiments/RESULTS.md, s35-unseen). 0: Adam without decay,
     the training before the thirty-fifth session (then left out of the checkpoints' and model keys' options, so
     those of earlier trainings stay theirs)."""
+    colour_input: str = "linear"
+    """What the network's r, g, b inputs are (``learn.model.COLOUR_INPUTS``): ``"linear"``, the filtered linear
+    colours (the paper's), or ``"ratio"``, each over the undeformed reference's colour at the same pixel, filtered
+    alike (``learn.model.input_reference``; the model file records it, and inference divides by the reference it
+    carries). Why: with linear colours the net must learn how the LEDs' light falls off over the image from (u, v)
+    as well as how the colour turns with the normal; the ratio takes the fall-off out. Measured on Q2 medium
+    (docs/experiments/RESULTS.md, s36-ratio). ``"linear"`` is left out of the checkpoints' and model keys' options,
+    so those of earlier trainings stay theirs."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
@@ -167,6 +177,8 @@ class TrainConfig:
         decay = self.weight_decay
         if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 <= decay <= MAX_WEIGHT_DECAY):
             raise ConfigError(f"weight_decay must be in [0, {MAX_WEIGHT_DECAY:g}] (0: none), got {decay!r}")
+        if self.colour_input not in COLOUR_INPUTS:
+            raise ConfigError(f"colour_input must be one of {', '.join(COLOUR_INPUTS)}, got {self.colour_input!r}")
         if self.schedule not in ("plateau", "cosine"):
             raise ConfigError(f"schedule must be 'plateau' or 'cosine', got {self.schedule!r}")
         if self.lr_patience < 0 or not 0 < self.lr_factor < 1:
@@ -209,11 +221,14 @@ TRAINING_BARS = {"nlips": "training on NLiPs labels", "true": "training on true 
 """The training bar's description for each kind of labels (:attr:`TrainConfig.labels`)."""
 
 
-def training_arrays(data: dict, labels: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label."""
+def training_arrays(
+    data: dict, labels: str, reference: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label; ``reference``: what the
+    colours are divided by (``learn.model.input_reference``; None: linear colours)."""
     target = data["normal"] if labels == "nlips" else data["true_normal"]
     keep = np.all(np.isfinite(target), -1)
-    return model_inputs(data["pixel"][keep], data["rgb"][keep]), target[keep], data["contact"][keep]
+    return model_inputs(data["pixel"][keep], data["rgb"][keep], reference), target[keep], data["contact"][keep]
 
 
 @dataclasses.dataclass
@@ -383,8 +398,9 @@ def _training_data(
     samples are labelled or none is in contact, and (from ``dataset.reference``) when the reference is unreadable."""
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
     reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
-    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
-    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
+    divide = input_reference(reference, dataset.smoothing_px, dataset.smoothing_colour, cfg.colour_input)
+    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels, divide)
+    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels, divide)
     synthetic = 0
     if cfg.synthetic_share > 0 and len(x_tr):
         from .synthetic import samples_for_dataset
@@ -398,7 +414,7 @@ def _training_data(
             synthetic,
             len(x_tr),
         )
-        x_tr = np.concatenate([x_tr, model_inputs(syn["pixel"], syn["rgb"])])
+        x_tr = np.concatenate([x_tr, model_inputs(syn["pixel"], syn["rgb"], divide)])
         y_tr = np.concatenate([y_tr, syn["normal"]])
     if len(x_tr) < 2 or len(x_va) < 1:
         raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
@@ -468,6 +484,7 @@ def _save_trained(
         info=info,
         smoothing_px=dataset.smoothing_px,
         smoothing_colour=dataset.smoothing_colour,
+        colour_input=cfg.colour_input,
     )
 
 

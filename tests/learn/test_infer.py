@@ -1542,3 +1542,37 @@ def test_frames_results_are_refused_a_folder_a_stream_saves_into_also_when_only_
     assert not out.exists()
     assert main([*command, "--full-frame"]) == 0
     assert len(list(out.rglob("report.json"))) == 4
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_a_model_of_colour_ratios_is_given_the_colours_over_its_reference(trained_ratio, twin_presses, backend):
+    """`nlips infer`'s CPU path (PyTorch and ONNX) divides the filtered colours by the filtered reference the model
+    file carries, as its training and scoring did (net_predict): the same normals at the changed pixels."""
+    import copy
+
+    from nlipscalib.learn.evaluate import net_predict
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    if backend == "onnx":
+        pytest.importorskip("onnxruntime")
+        onnx = pytest.importorskip("onnx")
+
+        export_onnx(load_model(trained_ratio), trained_ratio.with_suffix(".onnx"))
+        meta = {p.key: p.value for p in onnx.load(trained_ratio.with_suffix(".onnx")).metadata_props}
+        assert meta["colour_input"] == "ratio"
+    predictor = Predictor(trained_ratio, backend=backend)
+    press = load_press(twin_presses / HELD_OUT)
+    tri = press.linear(press.tricolor)
+    frame = predictor.predict(tri)
+    rows, cols = np.nonzero(frame.changed)
+    assert len(rows) > 50
+    model = predictor.model
+    colours = Prefilter(predictor.valid, model.smoothing_px, model.smoothing_colour)(tri)[rows, cols]
+    want = net_predict(model, np.stack([cols, rows], 1), colours)
+    np.testing.assert_allclose(frame.normals[rows, cols], want, atol=2e-4)  # fused / ONNX float32 rounding
+    # without the division the network would see linear colours: normals far from these
+    as_linear = copy.copy(model)
+    as_linear.input_reference = None
+    linear = net_predict(as_linear, np.stack([cols, rows], 1), colours)
+    assert np.abs(linear - want).max() > 0.05
