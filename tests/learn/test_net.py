@@ -533,11 +533,14 @@ def test_a_model_of_colour_ratios_divides_by_the_datasets_filtered_reference_and
     pixel; the model file records the option, and its scoring (net_predict) divides by the reference it carries."""
     import torch
 
+    from nlipscalib.core.config import to_mapping
     from nlipscalib.learn.checkpoint import jsonable_config
     from nlipscalib.learn.model import model_inputs
     from nlipscalib.learn.train import TrainConfig
 
-    assert "colour_input" not in jsonable_config(TrainConfig())  # the linear default: keys as before the option
+    # the linear default: model keys and the experiments' records as before the option
+    assert "colour_input" not in jsonable_config(TrainConfig()) and "colour_input" not in to_mapping(TrainConfig())
+    assert to_mapping(TrainConfig(colour_input="ratio"))["colour_input"] == "ratio"
     assert jsonable_config(TrainConfig(colour_input="ratio"))["colour_input"] == "ratio"
     model = load_model(trained_ratio)
     assert model.colour_input == "ratio" and model.info["config"]["colour_input"] == "ratio"
