@@ -71,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
 
 def parity_deg(model: LoadedModel, onnx_path: Path) -> float:
     """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels, their
-    colours as they are and 10 % darker and brighter (a contact changes them); CaptureError beyond the limit."""
+    colours as they are and 10 % darker and brighter (a contact changes them), over the model's filtered reference
+    colours for a model of ratios (``learn.model.model_inputs``); CaptureError beyond the limit."""
     import numpy as np
 
     from ..learn.model import model_inputs

@@ -1576,3 +1576,22 @@ def test_a_model_of_colour_ratios_is_given_the_colours_over_its_reference(traine
     as_linear.input_reference = None
     linear = net_predict(as_linear, np.stack([cols, rows], 1), colours)
     assert np.abs(linear - want).max() > 0.05
+
+
+def test_nlips_export_checks_a_ratio_model_on_colour_ratios(trained_ratio, tmp_path, monkeypatch):
+    """`nlips export`'s parity check gives the ONNX file and PyTorch the inputs inference gives them: for a model of
+    colour ratios, the reference's colours (10 % darker, as they are, brighter) over the reference's: 0.9, 1, 1.1."""
+    import shutil
+
+    from nlipscalib.learn import onnx_export
+
+    model = tmp_path / "ratio.pt"
+    shutil.copy(trained_ratio, model)
+    seen = []
+    check = onnx_export.checked_parity
+    monkeypatch.setattr(onnx_export, "checked_parity", lambda m, p, x, **kw: seen.append(x) or check(m, p, x, **kw))
+    assert main(["export", str(model)]) == 0
+    (x,) = seen
+    # the three blocks (darker, as they are, brighter): about 0.9, 1, 1.1 (the raw colours over the filtered ones)
+    medians = [float(np.median(block[:, 2:])) for block in np.split(x, 3)]
+    np.testing.assert_allclose(medians, [0.9, 1.0, 1.1], atol=0.01)
