@@ -28,6 +28,7 @@ OPTION_OF = {
     "batch_size": "--batch-size",
     "lr": "--lr",
     "weight_decay": "--weight-decay",
+    "colour_input": "--colour-input",
     "seed": "--seed",
     "max_seconds": "--max-minutes",
     "threads": "--threads",
@@ -79,6 +80,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="decoupled weight decay (AdamW; default: TrainConfig's, 0.2: the net extrapolates more gently to "
         "colours no calibration press showed, which lifted Q2's unseen indenters; 0: Adam without decay, as before "
         "the thirty-fifth session)",
+    )
+    p.add_argument(  # the value is checked once, by TrainConfig
+        "--colour-input",
+        help="the network's colour inputs: linear (default: the filtered colours, the paper's) or ratio (each over "
+        "the undeformed reference's colour at that pixel, which takes the LEDs' fall-off over the image out of what "
+        "the net must learn; the model file records it and `nlips infer` divides alike)",
     )
     p.add_argument(
         "--seed", type=int, default=0, help="seed of the validation split, weights, batch order, dropout (default 0)"
@@ -151,7 +158,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {
         k: v
-        for k, v in (("patience", args.patience), ("schedule", args.schedule), ("weight_decay", args.weight_decay))
+        for k, v in (
+            ("patience", args.patience),
+            ("schedule", args.schedule),
+            ("weight_decay", args.weight_decay),
+            ("colour_input", args.colour_input),
+        )
         if v is not None
     }
     if args.threads is not None:  # else TrainConfig's default
@@ -304,7 +316,9 @@ def export_and_check(model_path: Path, dataset: CalibrationDataset, names: Seque
     path = export_onnx(
         model,
         model_path.with_suffix(".onnx"),
-        check=lambda tmp: angles.append(checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"]))),
+        check=lambda tmp: angles.append(
+            checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"], model.input_reference))
+        ),
     )
     return path, angles[0]
 

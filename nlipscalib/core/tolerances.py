@@ -34,6 +34,10 @@ leave those samples out of their fits, the brightest LEDs of a pixel first, so i
 (the audit's over-exposed session: 48 % of the gel's samples clipped, its LEDs calibrated to 3.5 times the images'
 noise, without a word on why). ``nlips infer`` and ``live`` say it of a frame with this share of the gel's pixels
 clipped."""
+MIN_REFERENCE_COLOUR = 1e-3
+"""Smallest reference colour (linear units) a model of ``colour_input`` "ratio" divides a gel pixel's colour by
+(``learn.model.input_reference``): the gel's reference colours are 0.3-0.9; a channel the LEDs leave dark at some pixel
+(a dead group, a black spot in the coat) would otherwise make its ratio infinite."""
 LIT_LEVEL = 1e-3
 """An LED image gives light when its bright end on the gel (``solver.image_stats.led_levels``: the 99th percentile of
 its samples) is at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing

@@ -36,7 +36,7 @@ CHECKPOINT_FILE = "checkpoint.pt"
 def jsonable_config(cfg: TrainConfig) -> dict:
     """``cfg`` as JSON values; the synthetic samples' options left out when ``synthetic_share`` is 0 (none made), and
     ``weight_decay`` when 0 (Adam without decay), so the checkpoints and model keys of trainings without them stay
-    those made before the options existed."""
+    those made before the options existed; ``colour_input`` likewise when ``"linear"``."""
     d = dataclasses.asdict(cfg)
     d["hidden"] = list(cfg.hidden)
     if not d.get("synthetic_share"):
@@ -44,6 +44,8 @@ def jsonable_config(cfg: TrainConfig) -> dict:
             d.pop(key, None)
     if not d.get("weight_decay"):
         d.pop("weight_decay", None)
+    if d.get("colour_input") == "linear":
+        d.pop("colour_input", None)
     return d
 
 

@@ -9,10 +9,11 @@ from .model import LoadedModel, model_inputs
 
 
 def net_predict(model: LoadedModel, pixel: np.ndarray, rgb: np.ndarray, batch: int = 65536) -> np.ndarray:
-    """(N, 3) unit normals of a LoadedModel for samples at ``pixel`` ((N, 2) (u, v)) with colours ``rgb`` ((N, 3))."""
+    """(N, 3) unit normals of a LoadedModel for samples at ``pixel`` ((N, 2) (u, v)) with colours ``rgb`` ((N, 3),
+    filtered linear: over the model's reference colours first when its ``colour_input`` is ``"ratio"``)."""
     import torch
 
-    x = model_inputs(pixel, rgb)
+    x = model_inputs(pixel, rgb, model.input_reference)
     out = []
     with torch.inference_mode():
         for s in range(0, len(x), batch):

@@ -5,7 +5,8 @@ and integrates their bounding box: shapes that change every frame. On a GPU fixe
 cheaper, and they let the whole frame's work be recorded once as a CUDA graph and replayed, so this
 path runs every step on the device with the shapes of the sensor: the tri-colour frame's
 linearisation, the model's prefilter (:mod:`.prefilter`'s normalised Gaussian, OpenCV's kernel, or its
-bilateral filter with the model's ``smoothing_colour``), the network on every gel pixel, the change rule of
+bilateral filter with the model's ``smoothing_colour``; for a model of ``colour_input`` "ratio" then divided by its
+filtered reference frame), the network on every gel pixel, the change rule of
 :mod:`.change` (the same operations), the reference normals kept where nothing changed (as on the CPU path;
 ``keep_reference=False`` keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
 changed pixels' boxes as the CPU does (per region where their common box does not apply, an edge box
@@ -69,6 +70,8 @@ class FullFrame:
         self.x = torch.as_tensor(np.stack([col, row], 1).astype(np.float32), device=device)  # u = column, v = row
         self.net = fused_net(model.net).to(device)
         self.filter = _GelFilter(valid, model.smoothing_px, device, model.smoothing_colour)
+        divide = model.input_reference  # a model of colour ratios: its filtered reference (learn.model.model_inputs)
+        self.input_reference = None if divide is None else torch.as_tensor(divide, device=device)
         # the whole gel (every pixel's normal from the network, or a region the boxes cannot solve) and the
         # changed pixels' boxes (the reference elsewhere, as on the CPU path)
         # the whole gel's set-up (a minute on two CPU cores for a gel that does not fill the image) only for it
@@ -178,6 +181,8 @@ class FullFrame:
         if self.gain is not None:  # an aged sensor's frame, in the calibration's light (set_gain)
             frame = frame * self.gain
         filtered = self.filter(frame)
+        if self.input_reference is not None:  # the colours over the reference's (1 off the gel: no division by 0)
+            filtered = filtered / self.input_reference
         # every gel pixel through the network: on a GPU cheaper than gathering the changed ones (a shape per frame)
         x = torch.cat([self.x, filtered.reshape(-1, 3)[self.flat]], 1)
         normals = torch.zeros(self.shape + (3,), dtype=torch.float32, device=self.device)

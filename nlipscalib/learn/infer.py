@@ -2,8 +2,9 @@
 
 Only the pixels that differ from the undeformed reference frame (:func:`changed_pixels`) go through
 the network, with their colours low-pass filtered as the model's training samples were
-(:mod:`.prefilter`); the others keep the reference normals and depth. Depth integrates the normals on the
-dome along the camera's real rays (:mod:`nlipscalib.learn.integrate`).
+(:mod:`.prefilter`; for a model of ``colour_input`` "ratio" then divided by its reference's, :mod:`.model`);
+the others keep the reference normals and depth. Depth integrates the normals on the dome along the
+camera's real rays (:mod:`nlipscalib.learn.integrate`).
 """
 
 from __future__ import annotations
@@ -313,6 +314,8 @@ class Predictor:
             row, col = np.divmod(index, self.shape[1])
             x[:, 1], x[:, 0] = row, col  # v = row, u = column
             x[:, 2:] = self._colours(tricolor, row, col)
+            if self.model.input_reference is not None:  # a model of colour ratios (learn.model.model_inputs)
+                x[:, 2:] /= self.model.input_reference[row, col]
             normals.reshape(-1, 3)[index] = self._run(x)
         t2 = time.perf_counter()
         if self.geo is not None:

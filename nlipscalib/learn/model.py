@@ -12,7 +12,10 @@ Input normalisation (inside the network, so PyTorch and ONNX take the same raw i
 - r, g, b: linear tri-colour intensity (``Press.linear``: dark-subtracted, 1 = full scale), low-pass
   filtered over the gel with the file's ``smoothing_px`` (:mod:`.prefilter`; outside the network, as
   it needs the neighbours; with the file's ``smoothing_colour``, if any, it stops at colour edges),
-  standardised with the training samples' per-channel mean and deviation.
+  standardised with the training samples' per-channel mean and deviation. With the file's ``colour_input``
+  ``"ratio"`` each filtered colour is first divided by the undeformed reference's, filtered alike, at the same pixel
+  (:func:`input_reference`; outside the network, as the prefilter is): the LEDs' fall-off over the image is then
+  no part of what the network must learn from (u, v).
 
 The model file (``.pt``, read with ``torch.load(weights_only=True)``: no pickled code) holds the
 weights, the architecture, the normalisation, what it was trained on, the sensor it was calibrated
@@ -181,9 +184,45 @@ def set_colour_normalisation(net: torch.nn.Module, rgb: np.ndarray) -> None:
         net.in_scale[2:] = torch.as_tensor(std, dtype=torch.float32)
 
 
-def model_inputs(pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
-    """(N, 5) float32 network input from pixels ((N, 2) (u, v)) and linear colours ((N, 3))."""
-    return np.concatenate([pixel.astype(np.float32), rgb.astype(np.float32)], axis=1)
+COLOUR_INPUTS = ("linear", "ratio")
+"""What a model's r, g, b inputs are (:attr:`learn.train.TrainConfig.colour_input`): the filtered linear colours, or
+those over the filtered undeformed reference's at the same pixel (:func:`input_reference`)."""
+
+
+def input_reference(
+    reference: Mapping[str, np.ndarray], smoothing_px: float, smoothing_colour: float, colour_input: str
+) -> np.ndarray | None:
+    """What a model's colours are divided by before the network (:func:`model_inputs`), or None for ``"linear"``.
+
+    Parameters
+    ----------
+    reference : the undeformed reference arrays (``learn.dataset.reference_arrays``: ``tricolor`` (H, W, 3) linear,
+        ``valid`` (H, W) bool), a dataset's or the ones a model file carries
+    smoothing_px, smoothing_colour : the samples' prefilter (:class:`.prefilter.Prefilter`)
+    colour_input : one of :data:`COLOUR_INPUTS`
+
+    Returns
+    -------
+    (H, W, 3) float32 or None: the reference frame filtered as the samples' colours are, at least
+    :data:`~nlipscalib.core.tolerances.MIN_REFERENCE_COLOUR` on the gel and 1 off it (a ratio never divides by 0)
+    """
+    from ..core.tolerances import MIN_REFERENCE_COLOUR
+    from .prefilter import Prefilter
+
+    if colour_input == "linear":
+        return None
+    valid = np.asarray(reference["valid"]).astype(bool)
+    filtered = Prefilter(valid, smoothing_px, smoothing_colour)(np.asarray(reference["tricolor"], np.float32))
+    return np.where(valid[..., None], np.maximum(filtered, MIN_REFERENCE_COLOUR), 1.0).astype(np.float32)
+
+
+def model_inputs(pixel: np.ndarray, rgb: np.ndarray, reference: np.ndarray | None = None) -> np.ndarray:
+    """(N, 5) float32 network input from pixels ((N, 2) (u, v)) and linear colours ((N, 3)); with ``reference``
+    ((H, W, 3) float32, :func:`input_reference`) each colour over the reference's at its pixel (``"ratio"``)."""
+    rgb = rgb.astype(np.float32)
+    if reference is not None:
+        rgb = rgb / reference[pixel[:, 1].astype(np.intp), pixel[:, 0].astype(np.intp)]
+    return np.concatenate([pixel.astype(np.float32), rgb], axis=1)
 
 
 def cosine_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -203,9 +242,12 @@ def save_model(
     info: dict,
     smoothing_px: float = 0.0,
     smoothing_colour: float = 0.0,
+    colour_input: str = "linear",
 ) -> Path:
     """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma,
-    ``smoothing_colour`` its colour sigma (written only when > 0: the files of the Gaussian alone stay as they were).
+    ``smoothing_colour`` its colour sigma (written only when > 0: the files of the Gaussian alone stay as they were),
+    ``colour_input`` what its colour inputs are (:data:`COLOUR_INPUTS`; written only when not ``"linear"``, so the
+    files of linear colours stay as they were).
     """
     import io
 
@@ -225,6 +267,8 @@ def save_model(
     }
     if smoothing_colour:
         payload["smoothing_colour"] = float(smoothing_colour)
+    if colour_input != "linear":
+        payload["colour_input"] = str(colour_input)
     buf = io.BytesIO()
     torch.save(payload, buf)
     return write_bytes(path, buf.getvalue())
@@ -247,6 +291,11 @@ class LoadedModel:
         self.info: dict = payload["info"]
         self.smoothing_px = float(payload.get("smoothing_px", 0.0))  # files from before the prefilter: raw inputs
         self.smoothing_colour = float(payload.get("smoothing_colour", 0.0))  # the prefilter's colour sigma (0: none)
+        self.colour_input: str = payload.get("colour_input", "linear")  # files from before the option: linear
+        self.input_reference = input_reference(
+            self.reference, self.smoothing_px, self.smoothing_colour, self.colour_input
+        )
+        """(H, W, 3) float32 or None: what the colours are divided by before the network (:func:`model_inputs`)."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -293,6 +342,10 @@ def load_model(path: str | Path) -> LoadedModel:
         check_colour_sigma(payload.get("smoothing_colour", 0.0), "'smoothing_colour'")
     except ConfigError as exc:
         raise CaptureError(f"{path}: {exc}") from None
+    if payload.get("colour_input", "linear") not in COLOUR_INPUTS:
+        raise CaptureError(
+            f"{path}: 'colour_input' must be one of {', '.join(COLOUR_INPUTS)}, got {payload['colour_input']!r}"
+        )
     _check_layer_shapes(hidden, payload["state_dict"], path)
     net = build_net(hidden, float(dropout), cam["width"], cam["height"])
     _check_finite_weights(payload["state_dict"], path)

@@ -189,6 +189,8 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     proto = pb.ModelProto(ir_version=IR_VERSION, producer_name="nlipscalib", graph=graph)
     proto.opset_import.add(domain="", version=OPSET)
     meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
+    if model.colour_input != "linear":  # its r, g, b are ratios to the .pt's reference: said to whoever reads the file
+        meta["colour_input"] = model.colour_input
     for key, value in meta.items():
         proto.metadata_props.add(key=key, value=value)
     return proto

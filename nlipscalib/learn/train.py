@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core.config import OMIT_AT
 from ..core.errors import PATH, ConfigError, check_kind
 from .checkpoint import (
     check_sampling_record,
@@ -36,10 +37,12 @@ from .checkpoint import (
 )
 from .dataset import INDEX_FILE, CalibrationDataset
 from .model import (
+    COLOUR_INPUTS,
     PAPER_DROPOUT,
     PAPER_HIDDEN,
     build_net,
     cosine_loss,
+    input_reference,
     model_inputs,
     save_model,
     set_colour_normalisation,
@@ -141,6 +144,18 @@ class TrainConfig:
     the training before the thirty-fifth session (then left out of the checkpoints' and model keys' options, so
     those of earlier trainings stay theirs)."""
 
+    colour_input: str = dataclasses.field(default="linear", metadata={OMIT_AT: "linear"})
+    """What the network's r, g, b inputs are (``learn.model.COLOUR_INPUTS``): ``"linear"``, the filtered linear
+    colours (the paper's), or ``"ratio"``, each over the undeformed reference's colour at the same pixel, filtered
+    alike (``learn.model.input_reference``; the model file records it, and inference divides by the reference it
+    carries). Why: with linear colours the net must learn how the LEDs' light falls off over the image from (u, v)
+    as well as how the colour turns with the normal; the ratio takes the fall-off out, and a tilt changes the inputs
+    alike wherever it lies. On Q2 medium the unseen split went 3.32 / 3.44 -> 3.17 / 3.13 deg vs truth at two training
+    seeds (the cone's and screw's 20-50 deg contact most), the seen split 0.97 / 1.10 -> 0.93 / 0.97
+    (docs/experiments/RESULTS.md, s36-ratio); not yet measured at full size, so off by default. ``"linear"`` is
+    left out of the checkpoints' and model keys' options and of the experiments' records (``core.config.OMIT_AT``), so
+    those of earlier trainings stay theirs."""
+
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
         if self.labels not in ("nlips", "true"):
@@ -168,6 +183,8 @@ class TrainConfig:
         decay = self.weight_decay
         if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 <= decay <= MAX_WEIGHT_DECAY):
             raise ConfigError(f"weight_decay must be in [0, {MAX_WEIGHT_DECAY:g}] (0: none), got {decay!r}")
+        if self.colour_input not in COLOUR_INPUTS:
+            raise ConfigError(f"colour_input must be one of {', '.join(COLOUR_INPUTS)}, got {self.colour_input!r}")
         if self.schedule not in ("plateau", "cosine"):
             raise ConfigError(f"schedule must be 'plateau' or 'cosine', got {self.schedule!r}")
         if self.lr_patience < 0 or not 0 < self.lr_factor < 1:
@@ -210,11 +227,14 @@ TRAINING_BARS = {"nlips": "training on NLiPs labels", "true": "training on true 
 """The training bar's description for each kind of labels (:attr:`TrainConfig.labels`)."""
 
 
-def training_arrays(data: dict, labels: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label."""
+def training_arrays(
+    data: dict, labels: str, reference: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label; ``reference``: what the
+    colours are divided by (``learn.model.input_reference``; None: linear colours)."""
     target = data["normal"] if labels == "nlips" else data["true_normal"]
     keep = np.all(np.isfinite(target), -1)
-    return model_inputs(data["pixel"][keep], data["rgb"][keep]), target[keep], data["contact"][keep]
+    return model_inputs(data["pixel"][keep], data["rgb"][keep], reference), target[keep], data["contact"][keep]
 
 
 @dataclasses.dataclass
@@ -389,8 +409,9 @@ def _training_data(
     samples are labelled or none is in contact, and (from ``dataset.reference``) when the reference is unreadable."""
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
     reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
-    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
-    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
+    divide = input_reference(reference, dataset.smoothing_px, dataset.smoothing_colour, cfg.colour_input)
+    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels, divide)
+    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels, divide)
     synthetic = 0
     if cfg.synthetic_share > 0 and len(x_tr):
         from .synthetic import samples_for_dataset
@@ -404,7 +425,7 @@ def _training_data(
             synthetic,
             len(x_tr),
         )
-        x_tr = np.concatenate([x_tr, model_inputs(syn["pixel"], syn["rgb"])])
+        x_tr = np.concatenate([x_tr, model_inputs(syn["pixel"], syn["rgb"], divide)])
         y_tr = np.concatenate([y_tr, syn["normal"]])
     if len(x_tr) < 2 or len(x_va) < 1:
         raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
@@ -474,6 +495,7 @@ def _save_trained(
         info=info,
         smoothing_px=dataset.smoothing_px,
         smoothing_colour=dataset.smoothing_colour,
+        colour_input=cfg.colour_input,
     )
 
 

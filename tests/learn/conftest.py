@@ -76,3 +76,14 @@ def trained(calib, tmp_path_factory):
     out = tmp_path_factory.mktemp("learn_model") / "net.pt"
     train(calib, TrainConfig(max_epochs=25, patience=8), out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def trained_ratio(calib, tmp_path_factory):
+    """A small NLiPsNet of colour ratios (``TrainConfig.colour_input`` "ratio"), HELD_OUT never seen."""
+    from nlipscalib.learn.train import TrainConfig, train
+
+    out = tmp_path_factory.mktemp("learn_model_ratio") / "ratio.pt"
+    cfg = TrainConfig(hidden=(32, 32), dropout=0.0, max_epochs=4, batch_size=256, colour_input="ratio")
+    train(calib, cfg, out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
+    return out

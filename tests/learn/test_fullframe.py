@@ -595,3 +595,28 @@ def test_box_sizes_counted_for_cuda_graphs_stay_bounded_over_a_long_stream():
     assert integrator.seen[held] == 79 * 79 and integrator._recorded(*held)
     # a size that dropped out counts anew: recorded again only at its RECORD_AFTER-th coming
     assert [integrator._recorded(1, 1) for _ in range(RECORD_AFTER)] == [False] * (RECORD_AFTER - 1) + [True]
+
+
+@pytest.mark.parametrize("keep_reference", [True, False])
+def test_the_device_path_divides_a_ratio_models_colours_by_its_reference_as_the_cpu_does(
+    trained_ratio, twin_presses, keep_reference
+):
+    """A model of colour ratios (``TrainConfig.colour_input``): the whole-frame path (here on the CPU) gives the
+    changed-pixel path's normals, and with --full-frame the network's on every gel pixel equal net_predict's."""
+    from nlipscalib.learn.evaluate import net_predict
+    from nlipscalib.learn.fullframe import FullFrame
+    from nlipscalib.learn.prefilter import Prefilter
+
+    cpu_predictor = Predictor(trained_ratio, backend="torch")
+    model = cpu_predictor.model
+    device_path = FullFrame(model, CPU, cpu_predictor.geo, keep_reference=keep_reference)
+    press = load_press(twin_presses / "press_g")
+    frame = press.linear(press.tricolor)
+    normals = device_path(frame)[0]
+    if keep_reference:
+        np.testing.assert_allclose(normals, cpu_predictor.predict(frame).normals, atol=1e-4)
+    else:
+        rows, cols = np.nonzero(cpu_predictor.valid)
+        colours = Prefilter(cpu_predictor.valid, model.smoothing_px, model.smoothing_colour)(frame)[rows, cols]
+        want = net_predict(model, np.stack([cols, rows], 1), colours)
+        np.testing.assert_allclose(normals[rows, cols], want, atol=1e-4)

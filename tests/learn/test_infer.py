@@ -1585,3 +1585,56 @@ def test_a_model_path_of_another_kind_is_one_error():
 
     with pytest.raises(ShapeError, match="model_path must be the model file's path"):
         Predictor(3)
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_a_model_of_colour_ratios_is_given_the_colours_over_its_reference(trained_ratio, twin_presses, backend):
+    """`nlips infer`'s CPU path (PyTorch and ONNX) divides the filtered colours by the filtered reference the model
+    file carries, as its training and scoring did (net_predict): the same normals at the changed pixels."""
+    import copy
+
+    from nlipscalib.learn.evaluate import net_predict
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    if backend == "onnx":
+        pytest.importorskip("onnxruntime")
+        onnx = pytest.importorskip("onnx")
+
+        export_onnx(load_model(trained_ratio), trained_ratio.with_suffix(".onnx"))
+        meta = {p.key: p.value for p in onnx.load(trained_ratio.with_suffix(".onnx")).metadata_props}
+        assert meta["colour_input"] == "ratio"
+    predictor = Predictor(trained_ratio, backend=backend)
+    press = load_press(twin_presses / HELD_OUT)
+    tri = press.linear(press.tricolor)
+    frame = predictor.predict(tri)
+    rows, cols = np.nonzero(frame.changed)
+    assert len(rows) > 50
+    model = predictor.model
+    colours = Prefilter(predictor.valid, model.smoothing_px, model.smoothing_colour)(tri)[rows, cols]
+    want = net_predict(model, np.stack([cols, rows], 1), colours)
+    np.testing.assert_allclose(frame.normals[rows, cols], want, atol=2e-4)  # fused / ONNX float32 rounding
+    # without the division the network would see linear colours: normals far from these
+    as_linear = copy.copy(model)
+    as_linear.input_reference = None
+    linear = net_predict(as_linear, np.stack([cols, rows], 1), colours)
+    assert np.abs(linear - want).max() > 0.05
+
+
+def test_nlips_export_checks_a_ratio_model_on_colour_ratios(trained_ratio, tmp_path, monkeypatch):
+    """`nlips export`'s parity check gives the ONNX file and PyTorch the inputs inference gives them: for a model of
+    colour ratios, the reference's colours (10 % darker, as they are, brighter) over the reference's: 0.9, 1, 1.1."""
+    import shutil
+
+    from nlipscalib.learn import onnx_export
+
+    model = tmp_path / "ratio.pt"
+    shutil.copy(trained_ratio, model)
+    seen = []
+    check = onnx_export.checked_parity
+    monkeypatch.setattr(onnx_export, "checked_parity", lambda m, p, x, **kw: seen.append(x) or check(m, p, x, **kw))
+    assert main(["export", str(model)]) == 0
+    (x,) = seen
+    # the three blocks (darker, as they are, brighter): about 0.9, 1, 1.1 (the raw colours over the filtered ones)
+    medians = [float(np.median(block[:, 2:])) for block in np.split(x, 3)]
+    np.testing.assert_allclose(medians, [0.9, 1.0, 1.1], atol=0.01)

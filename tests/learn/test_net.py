@@ -526,3 +526,59 @@ def test_a_garbage_onnx_file_names_the_way_to_write_it_again(tmp_path):
     message = str(caught.value)
     assert message.startswith(f"{garbage}: not a readable ONNX model (")
     assert message.endswith(f"`nlips export {model.path}` writes it again, or use --backend torch"), message
+
+
+def test_a_model_of_colour_ratios_divides_by_the_datasets_filtered_reference_and_records_it(calib, trained_ratio):
+    """TrainConfig.colour_input "ratio": the network learns from each colour over the filtered reference's at its
+    pixel; the model file records the option, and its scoring (net_predict) divides by the reference it carries."""
+    import torch
+
+    from nlipscalib.core.config import to_mapping
+    from nlipscalib.learn.checkpoint import jsonable_config
+    from nlipscalib.learn.model import model_inputs
+    from nlipscalib.learn.train import TrainConfig
+
+    # the linear default: model keys and the experiments' records as before the option
+    assert "colour_input" not in jsonable_config(TrainConfig()) and "colour_input" not in to_mapping(TrainConfig())
+    assert to_mapping(TrainConfig(colour_input="ratio"))["colour_input"] == "ratio"
+    assert jsonable_config(TrainConfig(colour_input="ratio"))["colour_input"] == "ratio"
+    model = load_model(trained_ratio)
+    assert model.colour_input == "ratio" and model.info["config"]["colour_input"] == "ratio"
+    ref = calib.filtered_reference()
+    valid = calib.reference()["valid"]
+    np.testing.assert_array_equal(model.input_reference[valid], ref[valid])
+    s = calib.arrays([HELD_OUT])
+    ratio = s["rgb"] / ref[s["pixel"][:, 1], s["pixel"][:, 0]]
+    # the colour normalisation was taken from the ratios (about 1), not from the linear colours
+    offset = model.net.in_offset[2:].numpy()
+    np.testing.assert_allclose(offset, 1.0, atol=0.05)
+    assert np.all(np.abs(offset - s["rgb"].mean(0)) > 0.1)
+    with torch.inference_mode():
+        want = model.net(torch.from_numpy(np.concatenate([s["pixel"], ratio], 1).astype(np.float32))).numpy()
+    np.testing.assert_allclose(net_predict(model, s["pixel"], s["rgb"]), want, atol=1e-6)
+    np.testing.assert_allclose(model_inputs(s["pixel"], s["rgb"], model.input_reference)[:, 2:], ratio, rtol=1e-6)
+
+
+def test_a_model_file_of_linear_colours_holds_no_colour_input_and_an_unknown_one_is_refused(trained, tmp_path):
+    import torch
+
+    payload = torch.load(trained, weights_only=True)
+    assert "colour_input" not in payload  # files of linear colours are as before the option
+    assert load_model(trained).input_reference is None
+    payload["colour_input"] = "log"
+    bad = tmp_path / "bad.pt"
+    torch.save(payload, bad)
+    with pytest.raises(CaptureError, match=r"bad\.pt: 'colour_input' must be one of linear, ratio, got 'log'"):
+        load_model(bad)
+
+
+def test_cli_train_colour_input_is_checked_in_one_line_and_recorded(calib, tmp_path, capsys):
+    out = tmp_path / "m.pt"
+    assert main(["train", str(calib.folder), "--out", str(out), "--colour-input", "log", "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "error: --colour-input must be one of linear, ratio, got 'log'" in lines[0], lines
+    assert not out.exists()
+    args = ["--colour-input", "ratio", "--hidden", "8,8", "--epochs", "1", "--exclude", HELD_OUT, "--no-progress"]
+    assert main(["train", str(calib.folder), "--out", str(out), *args]) == 0
+    assert load_model(out).colour_input == "ratio"
+    assert out.with_suffix(".onnx").is_file()  # exported and checked against PyTorch on ratio inputs
