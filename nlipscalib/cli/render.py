@@ -206,11 +206,33 @@ def _press(args: argparse.Namespace) -> PressConfig:
         raise ConfigError(f"press: {exc}") from None
     except ConfigError as exc:  # a typed word named by its flag, not by the key it sets ("press.indenter.kind")
         if mesh := re.search(r"indenter mesh .*", str(exc)):  # names its file itself (IndenterConfig checks it)
-            raise ConfigError(mesh[0]) from None
+            raise ConfigError(_mesh_problem(mesh[0], args, data.get("indenter"))) from None
         found = None if args.press_file else re.fullmatch(r"press\.indenter\.(kind|orientation): (.*)", str(exc))
         if found is None:
             raise
         raise ConfigError(f"{INDENTER_FLAGS[found[1]]}: {found[2]}") from None
+
+
+def _mesh_problem(problem: str, args: argparse.Namespace, indenter: object) -> str:
+    """The line for a mesh file that cannot be used (``problem``, IndenterConfig's "indenter mesh M: ..."), naming
+    the press file that gave it, and where a relative path was looked for (``sim.indenters.with_mesh_beside``:
+    from the working directory, then beside the press file).
+
+    Why: a press file naming a mesh that was not there said only "indenter mesh shapes/pyramid.stl: no such file",
+    neither the press file nor that the path is read beside it (s36-apileft)."""
+    from pathlib import Path
+
+    if not args.press_file or args.mesh or not isinstance(indenter, dict):  # --mesh: the flag's path, as typed
+        return problem
+    problem = problem.replace("--mesh takes a path", "the press file's mesh takes a path")
+    written = Path(str(indenter.get("mesh"))).expanduser()
+    if written.is_absolute():
+        return f"{args.press_file}: {problem}"
+    beside = Path(args.press_file).parent / written
+    return (
+        f"{args.press_file}: {problem}; a relative path is looked for from the working directory "
+        f"({written.resolve()}), then beside the press file ({beside})"
+    )
 
 
 INDENTER_FLAGS = {"kind": "--indenter", "orientation": "--orientation"}

@@ -10,10 +10,12 @@ from types import FrameType
 from .errors import ConfigError
 
 
-def check_main_guarded(what: str) -> None:
+def check_main_guarded(what: str, in_process: str = "workers=1") -> None:
     """ConfigError naming the script and line when ``what`` (e.g. "solve_presses(..., workers=2)") is run by a
     statement at a script's top level outside its ``if __name__ == "__main__":`` block; nothing in a notebook,
     ``python -c``, an imported module or the ``nlips`` command (no script of the caller's is ``__main__``).
+    ``in_process``: the caller's arguments that run the work in this process, the message's other way out
+    (a local Dask cluster's: ``scheduler=None``, not ``workers=1``).
 
     Why: the worker processes (forkserver or spawn) import the caller's script again, and so ran its call again,
     which failed in each of them with multiprocessing's "An attempt has been made to start a new process before the
@@ -34,7 +36,8 @@ def check_main_guarded(what: str) -> None:
     if not any(_guards(node) and node.lineno <= top.f_lineno <= (node.end_lineno or 0) for node in ast.walk(tree)):
         raise ConfigError(
             f"{path}, line {top.f_lineno}: {what} at the script's top level: its worker processes import the script "
-            'again and would run it too; call it under `if __name__ == "__main__":` (or with workers=1)'
+            'again and would run it too; call it under `if __name__ == "__main__":` '
+            f"(or with {in_process})"
         )
 
 

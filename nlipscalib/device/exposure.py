@@ -17,12 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from ..core.compression import blockiness_line, compressed
+from ..core.dark_pedestal import camera_dn, even_dark_offset
 from ..core.errors import CaptureError, require
 from ..core.lag_blind import say_lag_blind
 from ..core.repeated_frames import ExpectedLight, dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
+    DARK_FRAME_OFFSET,
     EXPOSURE_LIGHT_FRACTION,
     EXPOSURE_LIT_SHARE,
     EXPOSURE_SATURATED_SHARE,
@@ -73,6 +75,7 @@ def check_exposure(
     """
     require("cv2", "opencv-python-headless", "The exposure check")
     folder = Path(folder)
+    stored_dark = frames["dark"]  # as the camera gave it: the --black-level a pedestal asks for
     if (curve := response.tone_curve()) is not None:  # a declared sRGB camera: checked in light, as it is solved
         frames = {name: undo_tone_curve(frame.copy(), curve) for name, frame in frames.items()}
     names = sorted(name for name in frames if name.startswith("led_"))
@@ -88,6 +91,7 @@ def check_exposure(
     ]
     if reference:
         _refuse_unusable(folder, names, black, clipped, where)
+        _refuse_pedestal(folder, frames["dark"], stored_dark, response, gel, where)
     lines = [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
     lines += [over] if over else []
@@ -218,3 +222,33 @@ def _refuse_unusable(folder: Path, names: list[str], black: list[str], clipped: 
             f"{100 * EXPOSURE_UNUSABLE_SHARE:.0f} % {where} at the white level (or no light): lower --exposure-ms or "
             f"the LED level{tail}"
         )
+
+
+def _refuse_pedestal(
+    folder: Path, dark: np.ndarray, stored_dark: np.ndarray, response: SensorResponse, gel: np.ndarray, where: str
+) -> None:
+    """CaptureError when the reference's dark frame sits evenly above the declared black level by more than
+    :data:`~nlipscalib.core.tolerances.DARK_FRAME_OFFSET` of full scale: the camera's own black level (pedestal),
+    not declared (:func:`nlipscalib.core.dark_pedestal.even_dark_offset`, the solve's judgement).
+
+    Why: such a session was captured whole without a word, and ``nlips solve`` then refused every press, naming
+    ``--black-level N`` only after the lab's session (s36 device walk). The reference fixes the session's settings,
+    so it is refused before any press, as a black one is. ``dark`` is in the light (a declared tone curve undone),
+    as the solve judges it; ``stored_dark`` as the camera encoded it, the values ``--black-level`` takes."""
+    samples = dark[gel]
+    median = float(np.median(samples))
+    black, white = response.black_level, response.white_level
+    level = (median - black) / (white - black)
+    if level <= DARK_FRAME_OFFSET or not even_dark_offset(samples, median - black):
+        return
+    bits = response.bit_depth
+    pedestal = camera_dn(float(np.median(stored_dark[gel])), bits)
+    raise CaptureError(
+        f"{folder}/dark.png: not a dark frame of the black level {camera_dn(black, bits):g} (--black-level): the "
+        f"median {where}, {pedestal:.4g} in the camera's {bits}-bit values, is "
+        f"{100 * level:.1f} % of full scale above it and even, as a camera's own black level (pedestal) is, and "
+        f"`nlips solve` would refuse every press: capture again with it declared (`--black-level "
+        f"{pedestal:.4g}`); if that level is right, light reached it (an LED lit, or room light?): "
+        "capture with every LED off. The reference was not written (the session's settings are fixed only once "
+        "it is)"
+    )

@@ -196,7 +196,10 @@ def _check_guarded(workers: int, scheduler: str | None) -> None:
     if scheduler is None and workers > 1:
         check_main_guarded(f"running the experiment's tasks in {workers} processes (workers={workers})")
     elif local is not None:
-        check_main_guarded(f"running the experiment's tasks on a local cluster of {local} processes ({scheduler})")
+        check_main_guarded(
+            f"running the experiment's tasks on a local cluster of {local} processes ({scheduler})",
+            in_process="scheduler=None and workers=1",
+        )
 
 
 def run_experiment(

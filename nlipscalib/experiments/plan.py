@@ -119,6 +119,8 @@ class PressSet:
 
     def __post_init__(self):
         check_count("count", self.count)
+        # named by this field: each press's PressConfig would refuse its own polar_deg, a field the user never wrote
+        check_polar("polar_max_deg", self.polar_max_deg)
         if self.count and not self.indenters:
             raise ConfigError(f"indenters: {self.count} presses need at least one indenter, got none")
 

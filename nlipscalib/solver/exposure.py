@@ -11,6 +11,7 @@ import numpy as np
 
 from ..core import tolerances
 from ..core.capture import Press
+from ..core.dark_pedestal import camera_dn, even_dark_offset
 from ..core.repeated_frames import ExpectedLight, model_light
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 
@@ -174,8 +175,8 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
     if level > 0 and (curve := _tone_curve_cause(press)):
         above = f"{percent(level)} of full scale above the black level {black:g}"
         return f"{name}: its median on the gel, {median:g}, is {above}{curve}", True
-    if level > 0 and _even_offset(press.dark[gel], median - black):
-        dn = median / 2 ** (16 - press.response.bit_depth)
+    if level > 0 and even_dark_offset(press.dark[gel], median - black):
+        dn = camera_dn(median, press.response.bit_depth)
         return (
             f"{name}: not a dark frame of the black level {black:g}: its median on the gel, {median:g}, is "
             f"{percent(level)} of full scale above it and even across the gel, as a camera's own black level "
@@ -197,18 +198,6 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
         f"is measured from the dark frame, so each carries that offset",
         False,
     )
-
-
-def _even_offset(dark: np.ndarray, offset: float) -> bool:
-    """Whether the gel's dark samples ((N, 3) stored values) sit ``offset`` above the black level evenly, their
-    spread (5th to 95th percentile) under :data:`~nlipscalib.core.tolerances.DARK_PEDESTAL_SPREAD` of it: a camera's
-    black level (pedestal) not declared, where an LED left lit or room light falls off across the dome.
-
-    Why: a camera with a pedestal, captured with the default ``--black-level 0``, had every press refused with
-    "not a dark frame ... (an LED lit, or room light?); capture it with every LED off" (s36 device walk: the
-    emulated sensor's frames through the board's path), which the lab had done: the fix is the black level."""
-    low, high = np.percentile(dark, [5, 95])
-    return float(high - low) < tolerances.DARK_PEDESTAL_SPREAD * offset
 
 
 def _tone_curve_cause(press: Press) -> str:

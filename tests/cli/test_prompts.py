@@ -31,6 +31,7 @@ def test_interactive_capture_with_stdout_redirected_prints_only_the_session_fold
     out = tmp_path / "s"
     argv = ["capture", "--port", "nlipsemu://prompts", "--camera", str(frames), "--design", "nlipstac"]
     argv += ["--camera-calibration", str(tmp_path / "camera.json"), "--presses", "1", "--out", str(out)]
+    argv += ["--black-level", "101"]  # the frames' dark level (k = 1), their camera's own black level: declared
     keyboard, terminal = pty.openpty()
     try:
         proc = subprocess.Popen(

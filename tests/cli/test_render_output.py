@@ -239,3 +239,29 @@ def test_a_missing_mesh_is_one_line_before_the_render(tmp_path, capsys):
     assert main([*TINY, "--mesh", str(tmp_path / "nope.stl"), "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].endswith(f"indenter mesh {tmp_path / 'nope.stl'}: no such file"), err
+
+
+def test_a_press_files_missing_mesh_names_the_press_file_and_where_the_path_was_looked_for(
+    tmp_path, capsys, monkeypatch
+):
+    """A press file naming a mesh that is not there said only "indenter mesh shapes/cone.stl: no such file":
+    neither the press file nor that a relative path is read beside it (from the working directory first)."""
+    spec = tmp_path / "specs" / "press.toml"
+    spec.parent.mkdir()
+    spec.write_text('[indenter]\nkind = "mesh"\nmesh = "shapes/cone.stl"\n', encoding="utf-8")
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main([*TINY, "--press-file", str(spec), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips render: error: {spec}: indenter mesh shapes/cone.stl: no such file; a relative path is looked for "
+        f"from the working directory ({work / 'shapes' / 'cone.stl'}), then beside the press file "
+        f"({spec.parent / 'shapes' / 'cone.stl'})"
+    ]
+    absolute = tmp_path / "gone.stl"  # an absolute path: the press file and the path
+    spec.write_text(f'[indenter]\nkind = "mesh"\nmesh = "{absolute}"\n', encoding="utf-8")
+    assert main([*TINY, "--press-file", str(spec), "--out", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips render: error: {spec}: indenter mesh {absolute}: no such file"]
+    assert not (tmp_path / "p").exists()

@@ -74,3 +74,19 @@ def test_run_experiment_in_processes_from_an_unguarded_script_is_refused_before_
     last = done.stderr.strip().splitlines()[-1]
     assert "line 4: running the experiment's tasks in 2 processes (workers=2) at the script's top level" in last
     assert not (tmp_path / "work").exists() and not (tmp_path / "report").exists()
+
+
+def test_run_experiment_on_a_local_cluster_from_an_unguarded_script_names_the_in_process_way_out(tmp_path):
+    """Its refusal ended "(or with workers=1)", the hint of a worker pool: a local Dask cluster runs its workers
+    whatever ``workers`` is; ``scheduler=None`` (and workers=1) runs the tasks in the script's process."""
+    script = (
+        "from pathlib import Path\nfrom nlipscalib.experiments.framework import run_experiment\n"
+        f"root = Path({str(tmp_path)!r})\n"
+        'run_experiment(None, None, root / "work", root / "report", size="quick", scheduler="local:2")\n'
+    )
+    done = _run_script(tmp_path, script)
+    assert done.returncode == 1
+    last = done.stderr.strip().splitlines()[-1]
+    assert "line 4: running the experiment's tasks on a local cluster of 2 processes (local:2)" in last
+    assert last.endswith('call it under `if __name__ == "__main__":` (or with scheduler=None and workers=1)')
+    assert not (tmp_path / "work").exists() and not (tmp_path / "report").exists()

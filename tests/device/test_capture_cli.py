@@ -110,7 +110,18 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
         value = 100 + (k % 15) * (k % 15 != 14)
         cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), value, np.uint8))
     board = VirtualBoard(12)
-    args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes"]
+    args = [
+        "capture",
+        "--port",
+        board.url,
+        "--camera",
+        str(frames),
+        "--design",
+        "nlipstac",
+        "--yes",
+        "--black-level",
+        "101",
+    ]
     args += ["--camera-calibration", str(tmp_path / "camera.json"), "--presses", "1", "--out", str(tmp_path / "s")]
     assert main(args) == 0
     assert "press_0001: captured" in capsys.readouterr().err
@@ -141,8 +152,8 @@ def test_a_camera_response_declared_at_capture_is_recorded_and_undone_at_load(tm
     (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
     frames = tmp_path / "frames"
     frames.mkdir()
-    for k in range(2 * 15):
-        value = 100 + (k % 15) * (k % 15 != 14)
+    for k in range(2 * 15):  # the dark frame at the black level, 0 (one above it is refused: a pedestal)
+        value = 0 if k % 15 == 1 else 100 + (k % 15) * (k % 15 != 14)
         cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), value, np.uint8))
     for declared in ("srgb", None):
         board = VirtualBoard(12)
@@ -156,10 +167,10 @@ def test_a_camera_response_declared_at_capture_is_recorded_and_undone_at_load(tm
         assert "camera_gamma" in meta["provenance"] and meta["provenance"]["camera_gamma"] is None  # frames: none
         if declared:
             assert meta["format_version"] == 2 and meta["sensor"]["camera_response"] == "srgb"
-            assert p.dark[0, 0, 0] == round(srgb_to_linear(101 / 255) * (255 << 8))
+            assert p.tricolor[0, 0, 0] == round(srgb_to_linear(100 / 255) * (255 << 8))
         else:
             assert meta["format_version"] == 1 and "camera_response" not in meta["sensor"]
-            assert p.dark[0, 0, 0] == 101 << 8
+            assert p.tricolor[0, 0, 0] == 100 << 8
 
 
 def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_captures(tmp_path, capsys):
@@ -184,7 +195,19 @@ def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_cap
         cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 100 + (k % 15) * (k % 15 != 14), np.uint8))
     board = VirtualBoard(12)
     out = tmp_path / "s"
-    args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes", "--presses"]
+    args = [
+        "capture",
+        "--port",
+        board.url,
+        "--camera",
+        str(frames),
+        "--design",
+        "nlipstac",
+        "--yes",
+        "--black-level",
+        "101",
+        "--presses",
+    ]
     args += ["1", "--camera-calibration", str(tmp_path / "camera.json"), "--out", str(out)]
     with claim(out) as held:  # the capture already at work there (this process: it is alive)
         assert held
@@ -406,7 +429,17 @@ def test_nlipsemu_port_with_a_camera_starts_the_board_alone(tmp_path, capsys):
     for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
         cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 50 + k * (k != 14), np.uint8))
     url = "nlipsemu://capture-board"
-    args = ["capture", "--port", url, "--camera", str(frames), "--camera-calibration", str(camera)]
+    args = [
+        "capture",
+        "--port",
+        url,
+        "--camera",
+        str(frames),
+        "--camera-calibration",
+        str(camera),
+        "--black-level",
+        "51",
+    ]
     assert main([*args, "--presses", "0", "--out", str(tmp_path / "s")]) == 0
     captured = capsys.readouterr()
     assert "reference: captured" in captured.err and "emulated" not in captured.err
@@ -434,7 +467,18 @@ def test_capture_drives_the_led_board_at_the_rate_of_baud(tmp_path, capsys):
     for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
         cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 50 + k * (k != 14), np.uint8))
     board = VirtualBoard(12, baudrate=57600)
-    args = ["capture", "--port", board.url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
+    args = [
+        "capture",
+        "--port",
+        board.url,
+        "--camera",
+        str(frames),
+        "--camera-calibration",
+        str(camera),
+        "--yes",
+        "--black-level",
+        "51",
+    ]
     args += ["--presses", "0"]
     assert main([*args, "--out", str(tmp_path / "s"), "--baud", "57600"]) == 0
     assert "reference: captured" in capsys.readouterr().err

@@ -21,6 +21,10 @@ from tests.device.fakes import errors_only  # noqa: E402
 W, H = 64, 48
 SEQUENCE = 15
 """Frames of one press with the design's 12 LEDs: tri-colour, dark, LED 1..12, the tri-colour again."""
+DARK = 40
+"""The recorded frames' dark level, their camera's own black level (pedestal): declared by :func:`capture_args`
+(``--black-level``), as a lab must (a dark frame evenly above the declared black level is refused at the
+reference)."""
 
 
 def camera_file(tmp_path):
@@ -35,9 +39,9 @@ def camera_file(tmp_path):
 
 def frames_folder(tmp_path, presses: int, value=None, name: str = "frames"):
     """Recorded 8-bit frames for the reference and ``presses`` presses: ``value(k)`` is frame k's grey level
-    within its sequence (default: well exposed, the dark frame at 40, LED k at 60 + 10 k, the check frame the
-    tri-colour one's 150)."""
-    value = value or (lambda k: 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k)
+    within its sequence (default: well exposed, the dark frame at the camera's black level :data:`DARK`, LED k at
+    60 + 10 k, the check frame the tri-colour one's 150)."""
+    value = value or (lambda k: DARK if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k)
     folder = tmp_path / name
     folder.mkdir()
     for i in range(SEQUENCE * (presses + 1)):
@@ -45,9 +49,10 @@ def frames_folder(tmp_path, presses: int, value=None, name: str = "frames"):
     return folder
 
 
-def capture_args(board_url, frames, camera, out, presses: int):
+def capture_args(board_url, frames, camera, out, presses: int, black_level: int = DARK):
+    """The capture of recorded ``frames``, with the camera's black level declared (``--black-level``, DN)."""
     args = ["capture", "--port", board_url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
-    return args + ["--presses", str(presses), "--out", str(out)]
+    return args + ["--black-level", str(black_level), "--presses", str(presses), "--out", str(out)]
 
 
 def errors(err: str) -> list[str]:
@@ -196,7 +201,7 @@ def test_a_black_reference_is_refused_and_can_be_captured_again_at_another_expos
     failed with "no usable pixel to fit the interreflection term on"."""
     board = VirtualBoard(12)
     camera, out = camera_file(tmp_path), tmp_path / "s"
-    black = frames_folder(tmp_path, 1, value=lambda k: 0, name="black")
+    black = frames_folder(tmp_path, 1, value=lambda k: DARK, name="black")  # a lens cap: the black level
     assert main(capture_args(board.url, black, camera, out, 1)) == 2
     err = capsys.readouterr().err
     (line,) = errors(err)
@@ -214,7 +219,7 @@ def test_an_over_exposed_press_is_captured_with_a_warning_naming_the_file(tmp_pa
     frames.mkdir()
     for i in range(2 * SEQUENCE):  # the reference well exposed; press 1's LED 3 clipped over the top half
         k = i % SEQUENCE
-        image = np.full((H, W, 3), 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k, np.uint8)
+        image = np.full((H, W, 3), DARK if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k, np.uint8)
         if i == SEQUENCE + 4:  # press 1, LED 3
             image[: H // 2] = 255
         cv2.imwrite(str(frames / f"{i:04d}.png"), image)
@@ -229,3 +234,40 @@ def test_an_over_exposed_press_is_captured_with_a_warning_naming_the_file(tmp_pa
         "lower --exposure-ms or the LED level"
     ]
     assert not [r for r in caplog.records if "reference" in r.getMessage()]  # the reference was well exposed
+
+
+def test_a_reference_whose_dark_frame_is_a_pedestal_is_refused_naming_the_black_level(tmp_path, capsys):
+    """Recorded frames of a camera with a black level of its own (dark frame evenly at 40 DN), captured at the
+    default --black-level 0, were captured whole without a word; `nlips solve` then refused every press, naming
+    --black-level 40 only after the lab's session (s36 device walk)."""
+    board = VirtualBoard(12)
+    camera, out = camera_file(tmp_path), tmp_path / "s"
+    frames = frames_folder(tmp_path, 1)
+    assert main(capture_args(board.url, frames, camera, out, 1, black_level=0)) == 2
+    (line,) = errors(capsys.readouterr().err)
+    assert line.startswith(
+        f"nlips capture: error: {out / 'reference' / 'dark.png'}: not a dark frame of the black level 0 "
+        "(--black-level): the median of the gel, 40 in the camera's 8-bit values, is 15.7 % of full scale above it "
+        "and even, as a camera's own black level (pedestal) is, and `nlips solve` would refuse every press: capture "
+        "again with it declared (`--black-level 40`);"
+    )
+    assert not (out / "reference").exists() and not (out / "press_0001").exists()
+    # declared, the same frames are a session (nothing was captured, so the session is not bound to black level 0)
+    assert main(capture_args(board.url, frames_folder(tmp_path, 1, name="again"), camera, out, 1)) == 0
+    assert "press_0001: captured" in capsys.readouterr().err
+
+
+def test_a_dark_frame_lit_unevenly_is_not_named_a_pedestal_at_capture(tmp_path, capsys):
+    """Light falling off across the dome (a lamp, an LED left lit) is no black level to declare: the capture does
+    not send the lab to --black-level (the solve names the stray light)."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    ramp = np.linspace(0, 80, W).astype(np.uint8)  # the dark frame: room light from one side
+    for i in range(SEQUENCE):
+        image = np.full((H, W, 3), 150 if i in (0, SEQUENCE - 1) else 100 + 10 * i, np.uint8)
+        if i == 1:
+            image[:] = ramp[None, :, None]
+        cv2.imwrite(str(frames / f"{i:04d}.png"), image)
+    board = VirtualBoard(12)
+    assert main(capture_args(board.url, frames, camera_file(tmp_path), tmp_path / "s", 0, black_level=0)) == 0
+    assert "--black-level" not in capsys.readouterr().err

@@ -12,10 +12,13 @@ from nlipscalib.core.errors import CaptureError  # noqa: E402
 from nlipscalib.device.exposure import check_exposure  # noqa: E402
 
 H, W, L = 24, 32, 6
-RESPONSE = SensorResponse(bit_depth=16, black_level=0.0, white_level=65535.0)
+DARK = 1000
+"""The frames' dark level, their camera's black level: declared (a dark frame evenly above the declared black level
+is refused at the reference, as a pedestal)."""
+RESPONSE = SensorResponse(bit_depth=16, black_level=float(DARK), white_level=65535.0)
 
 
-def _frames(led=20000, dark=1000, tricolor=30000):
+def _frames(led=20000, dark=DARK, tricolor=30000):
     """A press's frames (uint16): grey levels; ``led`` one level or one per LED, each LED's frame brighter towards
     its own side (+-10 %, as neighbouring LEDs of a ring differ; black and saturated ones uniform), so no lit LED
     frame repeats another."""
@@ -127,3 +130,21 @@ def test_an_led_frame_that_repeats_the_one_before_is_named_with_the_fix(tmp_path
     lines = check_exposure(frames, RESPONSE, tmp_path / "press_0001")
     assert len(lines) == 1
     assert "led_04.png repeats led_03.png" in lines[0] and "--flush" in lines[0] and "press_0001" in lines[0]
+
+
+def test_a_reference_whose_dark_frame_sits_evenly_above_the_black_level_is_refused_naming_it(tmp_path):
+    """A camera's own black level (pedestal) left undeclared: the session was captured whole and `nlips solve`
+    refused every press after it. At the reference it is refused, naming the --black-level to declare; a dark frame
+    lit unevenly (room light from one side) is not a pedestal; a press (not the reference) is not checked."""
+    undeclared = SensorResponse(bit_depth=12, black_level=0.0, white_level=65520.0)
+    with pytest.raises(CaptureError) as refused:
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True)
+    assert str(refused.value).startswith(
+        f"{tmp_path / 'reference'}/dark.png: not a dark frame of the black level 0 (--black-level): the median of "
+        "the pixels, 62.5 in the camera's 12-bit values, is 1.5 % of full scale above it and even"
+    )
+    assert "capture again with it declared (`--black-level 62.5`)" in str(refused.value)
+    assert check_exposure(_frames(), undeclared, tmp_path / "press_0001") == []
+    lamp = _frames()
+    lamp["dark"] = np.linspace(0, 2 * DARK, W, dtype=np.uint16)[None, :, None] * np.ones((H, 1, 3), np.uint16)
+    assert check_exposure(lamp, undeclared, tmp_path / "reference", reference=True) == []

@@ -125,6 +125,7 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
     argv = [sys.executable, "-c", command, "--no-progress", "capture", "--port", board.url, "--yes"]
     argv += ["--camera", str(tmp_path / "v.avi"), "--camera-calibration", str(tmp_path / "camera.json")]
     argv += ["--average", "100", "--presses", "9", "--out", str(tmp_path / "s")]
+    argv += ["--black-level", "40"]  # the dark frame's level, the camera's own: declared (a pedestal is refused)
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60

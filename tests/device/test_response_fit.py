@@ -181,10 +181,11 @@ def test_a_device_capture_records_the_measured_curve_and_refuses_another_black_l
     (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
     frames = tmp_path / "frames"
     frames.mkdir()
-    for k in range(2 * 15):  # as tests/device/test_capture_cli.py: a reference and a press of 12 LEDs
-        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 100 + (k % 15) * (k % 15 != 14), np.uint8))
     response = read_response_file(measured["gamma2.2"])
     black = response.provenance["black_level_dn"]  # the emulated camera's, 64 DN of 12 bits
+    for k in range(2 * 15):  # as tests/device/test_capture_cli.py: a reference and a press of 12 LEDs
+        value = round(black) if k % 15 == 1 else 100 + (k % 15) * (k % 15 != 14)  # the dark frame at the black level
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), value, np.uint8))
     board = VirtualBoard(12)
     args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes", "--presses"]
     args += ["1", "--camera-calibration", str(tmp_path / "camera.json"), "--out", str(tmp_path / "s")]

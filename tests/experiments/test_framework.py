@@ -221,6 +221,8 @@ def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
         ("ablation", "counts = []\n", "nothing to run"),
         ("q2", "[train]\nindenters = []\n", "50 presses need at least one indenter, got none"),
         ("q2", "[train]\ncount = -3\n", "count: must be an integer >= 0, got -3"),
+        # a PressSet's own field named (it was each press's PressConfig "polar_deg: ... got 94.2", a field not written)
+        ("q2", "[unseen]\npolar_max_deg = 120.0\n", ".unseen: polar_max_deg: must be in [0, 90) deg (90 is the"),
     ],
 )
 def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, text, message, tmp_path, capsys):
@@ -231,6 +233,17 @@ def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, te
     assert main(["experiment", name, "--config", str(cfg), "--out", str(tmp_path), "--plan"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nlips experiment: error: {cfg}") and message in err[0], err
+
+
+def test_a_press_set_past_the_dome_names_its_own_field_from_python():
+    """PressSet(polar_max_deg=120) was made, and its presses() then refused "polar_deg: ... got 94.2", PressConfig's
+    field, naming neither the set's field nor the value written."""
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.experiments.plan import PressSet
+
+    with pytest.raises(ConfigError, match=r"^polar_max_deg: must be in \[0, 90\) deg .*, got 120\.0$"):
+        PressSet(polar_max_deg=120.0)
+    assert PressSet(polar_max_deg=89.0, count=40).presses()  # up to the rim: taken
 
 
 def test_press_count_study_config_names_file_and_problem(tmp_path, capsys):
