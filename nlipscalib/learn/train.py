@@ -152,7 +152,9 @@ class TrainConfig:
     as well as how the colour turns with the normal; the ratio takes the fall-off out, and a tilt changes the inputs
     alike wherever it lies. On Q2 medium the unseen split went 3.32 / 3.44 -> 3.17 / 3.13 deg vs truth at two training
     seeds (the cone's and screw's 20-50 deg contact most), the seen split 0.97 / 1.10 -> 0.93 / 0.97
-    (docs/experiments/RESULTS.md, s36-ratio); not yet measured at full size, so off by default. ``"linear"`` is
+    (docs/experiments/RESULTS.md, s36-ratio); at full size 3.27 / 3.20 -> 3.05 / 3.03, the seen split 0.92 / 0.86 ->
+    0.84 / 0.85 (the lead's run, the section after it). Off by default until its small-data behaviour is measured: on
+    the tests' few low-resolution presses and short trainings it learns less than the linear colours. ``"linear"`` is
     left out of the checkpoints' and model keys' options and of the experiments' records (``core.config.OMIT_AT``), so
     those of earlier trainings stay theirs."""
 
