@@ -270,7 +270,7 @@ def boxes_step(args) -> None:
 
     integrate_torch.RECORD_AFTER = 1  # a size's first call through the integrator records it, the next replays
     pred = Predictor(args.model[0])
-    full = FullFrame(pred.model, check_device(args.device), pred.geo, keep_reference=True)
+    full = FullFrame(pred.model, check_device(args.device, flag=True), pred.geo, keep_reference=True)
     integ = full.box_integrator
     H, W = integ.on_gel.shape
     normals = full.ref_normals
@@ -436,7 +436,7 @@ def _check_device(step: str, device: str) -> None:
     from nlipscalib.learn.torch_device import check_device
 
     try:
-        check_device(device)
+        check_device(device, flag=True)  # worded for this script's --device
     except (NlipsError, ImportError) as exc:  # ImportError: torch missing (MissingDependencyError)
         raise SystemExit(f"bench_gpu_infer.py {step}: {exc}") from None
 

@@ -14,7 +14,6 @@ them kept (its later checks: the solve's undeformed capture, calibrate-leds' sec
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -66,4 +65,10 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("tag", help="printed first: which tree this run measures")
+    parser.add_argument("presses", nargs="+", help="press folders (their tri-colour, LED and dark images)")
+    args = parser.parse_args()
+    main([args.tag, *args.presses])

@@ -38,7 +38,7 @@ def _device(check_device, name: str):
     from nlipscalib.core.errors import NlipsError
 
     try:
-        return check_device(name)
+        return check_device(name, flag=True)  # worded for this script's --device
     except NlipsError as exc:
         raise SystemExit(f"bench_train_step.py: {exc}") from None
 

@@ -232,7 +232,8 @@ def _light_step(leds: LedBoard, frame: np.ndarray, name: str, port: str) -> None
         raise DeviceError(
             f"{port}: the board reset as the test lit {name} ({exc.reason}): a board that resets as its LEDs light "
             "is often browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, "
-            "Wiring); run the test again (a lower --level draws less)"
+            "Wiring, in the nlipscalib source distribution or repository); run the test again (a lower --level "
+            "draws less)"
         ) from None
 
 

@@ -339,6 +339,7 @@ def test_a_board_that_resets_during_leds_test_is_one_line_naming_the_step(capsys
     assert err == [
         f"nlips leds: error: {board.url}: the board reset as the test lit all red (it printed its boot banner): a "
         "board that resets as its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a "
-        "supply too weak: firmware/README.md, Wiring); run the test again (a lower --level draws less)"
+        "supply too weak: firmware/README.md, Wiring, in the nlipscalib source distribution or repository); run the "
+        "test again (a lower --level draws less)"
     ]
     assert not board.latched.any()  # and the test left them dark

@@ -119,11 +119,11 @@ def test_a_folder_of_other_things_is_refused_before_the_render(scene, tmp_path, 
 
     out = tmp_path / "notes"
     out.mkdir()
-    (out / "mine.txt").write_text("keep me")
+    (out / "mine.txt").write_text("keep me", encoding="utf-8")
     with pytest.raises(ConfigError, match="holding other things than a press") as caught:
         render_press(scene, None, out, overwrite=overwrite)
     assert str(out) in str(caught.value) and "choose another out_folder" in str(caught.value)
-    assert "--out" not in str(caught.value) and (out / "mine.txt").read_text() == "keep me"
+    assert "--out" not in str(caught.value) and (out / "mine.txt").read_text(encoding="utf-8") == "keep me"
 
 
 def test_a_press_folder_without_overwrite_is_said_before_the_render(scene, tmp_path, monkeypatch):
@@ -132,7 +132,7 @@ def test_a_press_folder_without_overwrite_is_said_before_the_render(scene, tmp_p
 
     out = tmp_path / "p"
     out.mkdir()
-    (out / "meta.json").write_text("{}")
+    (out / "meta.json").write_text("{}", encoding="utf-8")
     monkeypatch.setattr(surface, "render_surface", lambda *a, **k: pytest.fail("rendered"))
     with pytest.raises(FileExistsError, match="overwrite=True renders it again") as caught:
         render_press(scene, None, out)
@@ -145,7 +145,7 @@ def test_an_empty_folder_needs_overwrite(scene, tmp_path):
     with pytest.raises(ConfigError, match="exists and is not a press folder; choose another out_folder or use "):
         render_press(scene, None, tmp_path)
     notes = tmp_path / "notes.txt"
-    notes.write_text("x")
+    notes.write_text("x", encoding="utf-8")
     with pytest.raises(ConfigError, match="a file where a folder is needed"):
         render_press(scene, None, notes, overwrite=True)
 
