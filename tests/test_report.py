@@ -100,6 +100,32 @@ def test_normal_map_png_matches_normals_to_rgb(tmp_path):
     np.testing.assert_array_equal(img, np.round(normals_to_rgb(n) * 255))
 
 
+def test_figure_maps_are_written_losslessly_with_the_captures_fast_png_settings(tmp_path):
+    """A solve's maps (noisy residual and error maps among them) were deflated at level 1 with libpng choosing a
+    filter per row: ~2.5x the encoding CPU of the captures' fixed SUB filter and run-length deflate at about the same
+    size (cube1's auto ROI: 25 -> 10 ms per solve, benchmarks/RESULTS.md, s37-cubefast)."""
+    import cv2
+
+    from nlipscalib.report.maps import normal_map_png, scalar_map_png
+    from tests.core.test_imageio import _png_row_filters
+
+    rng = np.random.default_rng(0)
+    values = rng.normal(0.0, 1.0, (40, 50))
+    values[:5] = np.nan
+    normals = np.dstack([rng.normal(0, 0.2, (40, 50)), rng.normal(0, 0.2, (40, 50)), -np.ones((40, 50))])
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    for path in (
+        scalar_map_png(tmp_path / "r.png", values, "magma", "a.u."),
+        normal_map_png(tmp_path / "n.png", normals),
+    ):
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+            assert _png_row_filters(path.read_bytes(), img.shape[1] * 3) == {1}  # PNG filter type 1: SUB
+    # lossless: the normal map's pixels are its colours exactly
+    img = cv2.imread(str(tmp_path / "n.png"), cv2.IMREAD_COLOR)[..., ::-1]
+    np.testing.assert_array_equal(img, np.round(normals_to_rgb(normals) * 255))
+
+
 def _png(rgb: np.ndarray) -> bytes:
     import io
 

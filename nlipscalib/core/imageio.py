@@ -35,14 +35,15 @@ def write_png16(path: str | Path, image: np.ndarray) -> Path:
         raise ShapeError(f"write_png16 needs (H, W) or (H, W, 3) uint16, got {image.shape} {image.dtype}")
     cv2 = _cv2()
     bgr = image[..., ::-1] if image.ndim == 3 else image
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), _png_params())
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), png_params())
     if not ok:  # pragma: no cover - OpenCV failure
         raise CaptureError(f"{path}: OpenCV could not encode the image")
     return write_bytes(path, buf.tobytes())
 
 
-def _png_params() -> list[int]:
-    """OpenCV's PNG settings for captures: every row SUB-filtered, deflated at level 1 with run-length matches only.
+def png_params() -> list[int]:
+    """OpenCV's PNG settings for captures and figure maps: every row SUB-filtered, deflated at level 1 with
+    run-length matches only.
 
     A capture's 16-bit values carry sensor noise, which defeats deflate's search for repeated strings and makes
     libpng's per-row choice among its five filters (what a compression level alone asks for) pay for nothing:
@@ -50,6 +51,9 @@ def _png_params() -> list[int]:
     10 % smaller files, decoded ~1.5x as fast (benchmarks/RESULTS.md, s18-j). Images without noise (a render with
     ``[noise] enabled = false``) come out ~1.7x as large as that setting's. Lossless either way. OpenCV reads the
     strategy after the level (the level resets it); an older OpenCV without the filter setting keeps libpng's choice.
+    A solve's figure maps (:mod:`nlipscalib.report.maps`: noisy residual and error maps, smooth normals and depth)
+    encode in ~0.4x the CPU of level 1 alone at about the same total size (cube1's auto ROI: 25 -> 10 ms, 798 ->
+    792 KiB; benchmarks/RESULTS.md, s37-cubefast).
     """
     cv2 = _cv2()
     params = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 from ..core.errors import ShapeError, require
+from ..core.imageio import png_params
 from .figures import NO_VALUE_GREY, normals_to_rgb
 
 COLORMAPS = {
@@ -219,7 +220,7 @@ def _fmt(v: float) -> str:
 
 def _write_png(path: str | Path, bgr: np.ndarray) -> Path:
     cv2 = _cv2()
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), png_params())
     if not ok:  # pragma: no cover - OpenCV failure
         raise ShapeError(f"{path}: OpenCV could not encode the map")
     return write_bytes(path, buf.tobytes())
