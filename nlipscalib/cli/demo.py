@@ -159,12 +159,11 @@ def _error_panel(err: np.ndarray, contact: np.ndarray | None = None) -> Panel:
     (``error_scale``): a fixed 0-10 deg, or one range shared with a coin's 20-deg edges, showed the sphere's and
     the cube's half-degree errors as black squares. The rows compare by their AAE and colour bars. The title gives
     the contact AAE too (``contact``: the truth's (H, W) bool contact region), as the table and the summary do."""
-    from ..report import Panel
-    from ..report.figures import ERROR_CMAP, error_scale
+    from ..report.figures import error_panel
     from ..report.reconstruction import error_title
 
     # the table's "AAE roi" (every scored pixel) and "AAE contact"
-    return Panel(error_title(err, contact), err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
+    return error_panel(error_title(err, contact), err)
 
 
 def _say_table(table: list[tuple[str, str, dict]]) -> None:

@@ -30,6 +30,12 @@ maps, scalar panels and the OpenCV maps alike. Not black: in the error colour ma
 sheets drew off-gel pixels black in the normal panels beside grey in the error panel."""
 ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
 """Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
+ERROR_UNIT = "deg"
+"""Unit label of every angular-error colour bar (the OpenCV error.png's, the sheets'), as the AAE titles write it:
+the sheets said "degrees" beside a summary's and error.png's "deg"."""
+MIN_TEXT_PX = 9.0
+"""Smallest text a saved figure may hold, pixels tall (font size in points x dpi / 72). The experiment charts,
+saved at 80 dpi, had 7-pt legends 7.8 px tall: the method names could not be read."""
 
 
 def new_figure(**kwargs: object) -> Figure:
@@ -109,8 +115,38 @@ class Panel:
     as a legend of its colours instead of a colour bar, whose continuous 0-1 scale means nothing there."""
 
 
+def error_panel(title: str, error: np.ndarray, vmax: float | None = None) -> Panel:
+    """The angular-error panel of every sheet (demo, summary, experiment maps): :data:`ERROR_CMAP` from 0 to ``vmax``
+    (None: :func:`error_scale` of ``error``), its colour bar in :data:`ERROR_UNIT`.
+
+    Parameters
+    ----------
+    title : the panel's title (its AAE, where the caller prints one)
+    error : (h, w) float, degrees, NaN = not scored (drawn :data:`NO_VALUE_GREY`)
+    vmax : upper end of the colour bar, degrees
+    """
+    top = error_scale([error]) if vmax is None else vmax
+    return Panel(title, error, cmap=ERROR_CMAP, label=ERROR_UNIT, vmin=0.0, vmax=top)
+
+
+def png_bytes(fig: Figure, dpi: int) -> bytes:
+    """``fig`` encoded as a PNG at ``dpi`` (every figure of the package is saved through here)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def save_png(fig: Figure, path: str | Path, dpi: int) -> Path:
+    """Write ``fig`` to ``path`` as a PNG at ``dpi``, atomically; returns ``path``."""
+    return write_bytes(path, png_bytes(fig, dpi))
+
+
+SHEET_DPI = 110
+"""Default resolution of a contact sheet (its 7-pt colour-bar numbers are 10.7 px tall, :data:`MIN_TEXT_PX`)."""
+
+
 def contact_sheet(
-    rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = 110, caption: str = "", title: str = ""
+    rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = SHEET_DPI, caption: str = "", title: str = ""
 ) -> Path:
     """Save a grid of panels (one row per press) as a PNG, atomically.
 
@@ -121,10 +157,7 @@ def contact_sheet(
     caption : one line under the grid, e.g. :data:`NORMALS_KEY` on sheets with normal maps
     title : one line over the grid
     """
-    fig = sheet_figure(rows, caption, title)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return write_bytes(path, buf.getvalue())
+    return save_png(sheet_figure(rows, caption, title), path, dpi)
 
 
 PANEL_WIDTH_IN = 2.2
@@ -140,8 +173,10 @@ TITLE_ROOM_IN = 0.42
 """Height over each row's images for their titles (two lines at 9 pt), inches."""
 LEGEND_ROOM_IN = 0.3
 """Height under a row's images for a categorical panel's legend (one line at 7 pt), inches."""
-ROW_TITLE_IN = 0.5
-"""Width left of the first column for the row titles (two lines at 10 pt, turned), inches."""
+ROW_TITLE_LINE_IN, ROW_TITLE_PAD_IN = 0.18, 0.14
+"""Width left of the first column per line of the row titles (10 pt, turned), and the margins beside them, inches:
+a fixed 0.5 in held two lines; the experiments' three-line titles ("sphere, true", the press, its contact AAE)
+touched the sheet's edge and the images."""
 SHEET_TITLE_IN, CAPTION_IN, MARGIN_IN = 0.3, 0.35, 0.1
 """Heights of the sheet's title line and caption line, and the margin where there is none, inches."""
 
@@ -164,7 +199,7 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
     ncols = max(len(p) for _, p in rows)
     aspect = max((p.image.shape[0] / p.image.shape[1] for _, panels in rows for p in panels), default=1.0)
     image_w, image_h = PANEL_WIDTH_IN, PANEL_WIDTH_IN * aspect
-    left = ROW_TITLE_IN if any(row_title for row_title, _ in rows) else MARGIN_IN
+    left = row_title_width(row_title for row_title, _ in rows)
     legends = [LEGEND_ROOM_IN if any(p.legend for p in panels) else 0.0 for _, panels in rows]
     barred = [any(c < len(panels) and _has_bar(panels[c]) for _, panels in rows) for c in range(ncols)]
     columns = np.cumsum([left] + [image_w + (BAR_ROOM_IN if bar else GAP_IN) for bar in barred])  # left edges
@@ -199,6 +234,13 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
     if caption:
         fig.text(0.5, CAPTION_IN / 2 / height, caption, ha="center", va="center", fontsize=8)
     return fig
+
+
+def row_title_width(titles: Iterable[str]) -> float:
+    """Width left of a sheet's first column, inches: room for the longest row title's lines (:data:`MARGIN_IN`
+    without titles)."""
+    lines = max((len(t.splitlines()) for t in titles if t), default=0)
+    return lines * ROW_TITLE_LINE_IN + ROW_TITLE_PAD_IN if lines else MARGIN_IN
 
 
 def _has_bar(panel: Panel) -> bool:
