@@ -107,11 +107,25 @@ def run(args: argparse.Namespace) -> int:
     from ..report import contact_sheet
     from ..report.figures import NORMALS_KEY
 
-    sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY)
+    title = _sheet_title(Path(spec.scene).stem, scene.camera.width, scene.camera.height, not args.no_solve)
+    sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY, title=title)
     print_result(sheet)  # stdout: the demo's product, the contact sheet, alone (scripts); its scores on stderr
     _say_table(table)
     say(f"contact sheet: {sheet}")
     return 1 if failed else 0
+
+
+def _sheet_title(scene: str, width: int, height: int, solved: bool) -> str:
+    """The contact sheet's title: what it shows, of which twin (the sheet opened alone said nothing of it).
+
+    Parameters
+    ----------
+    scene : the spec's scene name
+    width, height : the presses' image size, pixels
+    solved : whether the presses were reconstructed (not ``--no-solve``)
+    """
+    shown = "NLiPs around each press's contact vs the true normals" if solved else "the true normals (--no-solve)"
+    return f"nlips demo on the {scene} twin ({width}x{height} px): {shown}"
 
 
 def _solve(press: Press, figures: bool) -> Reconstruction | None:
