@@ -741,6 +741,9 @@ def test_every_figure_text_is_readable_at_its_saved_dpi(tmp_path, monkeypatch):
         {"epoch": e, "train_loss": 0.1 / (e + 1), "val_aae_deg": 3.0, "val_contact_aae_deg": 3.1} for e in range(4)
     ]
     learn.training_curve(history, tmp_path / "c.png", val_presses=["sphere"])
+    learn.training_curve(
+        history, tmp_path / "c.png", val_presses=[f"sphere-p{i}.1-a15.2-d1.05-86cb5640ea" for i in range(3)]
+    )
     for ylabel in ("AAE in the contact (°)", experiments.MABSE_LABEL):  # the labels Q1 and the ablation draw
         experiments.sweep({"twin": ([3, 12, 24], [0.0097, 0.0081, 0.0062], [0.0] * 3)}, "LEDs", ylabel, tmp_path / "m")
     names = ["no bounce, uncorrected", "1 bounce, uncorrected", "1 bounce, reference + dent corrected"]
@@ -851,7 +854,11 @@ def test_training_curve_names_its_validation_presses(tmp_path, monkeypatch):
     learn.training_curve(history, tmp_path / "c.png", "NLiPsNet 64,64,64", ["sphere"])
     assert curves[0]._suptitle.get_text() == "NLiPsNet 64,64,64, validation press sphere"
     assert learn.validation_line(["a", "b"]) == ", validation presses a, b"
-    assert learn.validation_line([f"p{i}" for i in range(10)]) == ", 10 validation presses"
+    assert learn.validation_line([f"p{i}" for i in range(10)]) == ", validation presses " + ", ".join(
+        f"p{i}" for i in range(10)
+    )
+    long = ["sphere-p12.1-a15.2-d1.05-86cb5640ea-584aae", "cube-p9.4-a287.5-d1.18-86cb5640ea-df01e4"]
+    assert learn.validation_line(long) == ", 2 validation presses"  # names this long would run off the figure
     assert learn.validation_line([]) == ""
 
 

@@ -310,7 +310,8 @@ class Q2(Experiment):
             caption = f"AAE on the test presses' contact samples {label}"
             fig.grouped_bars(splits, series, f"AAE {label} (°)", folder / name, lines, title=caption)
             figs.append((caption, name))
-        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"])
+        validation = learned["models"]["nlipsnet"]["val_presses"]
+        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"], validation)
         figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
         return figs
 

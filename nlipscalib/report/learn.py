@@ -154,8 +154,9 @@ def training_curve(
     return _save(fig, path)
 
 
-VALIDATION_NAMED = 3
-"""Validation presses the training curve's title names; more are counted (the paper's 10 would fill a line)."""
+VALIDATION_NAMES_CHARS = 60
+"""Longest list of validation press names the training curve's title gives; a longer one is counted (the paper's
+10 presses, or an experiment's "sphere-p12.1-a15.2-d1.05-86cb5640ea-584aae", would run off the 9-in figure)."""
 
 
 def validation_line(names: Sequence[str]) -> str:
@@ -168,9 +169,10 @@ def validation_line(names: Sequence[str]) -> str:
     """
     if not names:
         return ""
-    if len(names) > VALIDATION_NAMED:
-        return f", {len(names)} validation presses"
-    return f", validation press{'es' if len(names) > 1 else ''} {', '.join(names)}"
+    listed = ", ".join(names)
+    if len(listed) > VALIDATION_NAMES_CHARS:
+        return f", {len(names)} validation press{'es' if len(names) > 1 else ''}"
+    return f", validation press{'es' if len(names) > 1 else ''} {listed}"
 
 
 def best_epoch_title(best: dict) -> str:
