@@ -875,3 +875,20 @@ def test_a_summary_of_a_region_says_where_it_lies_in_the_image(tmp_path, monkeyp
     write_reconstruction_figures(tmp_path, rec, None, "full", name="sphere")
     assert sheets["title"] == "sphere, NLiPs, pixels u 5-11, v 3-8"
     assert box_words((slice(None), slice(None)), (12, 16)) == ""
+
+
+def test_the_response_figures_key_shows_its_measured_points_large_enough_to_see(tmp_path, monkeypatch):
+    """The cloud's 2-pt dots were as small in the legend: "measured (green)" stood beside an invisible key."""
+    from nlipscalib.report import camera_response
+    from nlipscalib.report.figures import MIN_TEXT_PX
+
+    figures = []
+    save = camera_response.save_png
+    monkeypatch.setattr(camera_response, "save_png", lambda fig, path, dpi: figures.append(fig) or save(fig, path, dpi))
+    codes = np.arange(256.0)
+    linear = (codes / 255) ** 2.2
+    camera_response.response_figure(linear, np.stack([linear] * 3, 1), (codes, linear), tmp_path / "r.png", "cam")
+    ax = figures[0].axes[0]
+    key = next(h for h in ax.get_legend().legend_handles if hasattr(h, "get_sizes"))
+    assert key.get_sizes()[0] >= 8 * ax.collections[0].get_sizes()[0]
+    assert _smallest_text_px(figures[0], camera_response.DPI) >= MIN_TEXT_PX
