@@ -892,3 +892,23 @@ def test_the_response_figures_key_shows_its_measured_points_large_enough_to_see(
     key = next(h for h in ax.get_legend().legend_handles if hasattr(h, "get_sizes"))
     assert key.get_sizes()[0] >= 8 * ax.collections[0].get_sizes()[0]
     assert _smallest_text_px(figures[0], camera_response.DPI) >= MIN_TEXT_PX
+
+
+def test_a_narrow_sheets_title_and_caption_are_wrapped_inside_it():
+    """An image frame's summary (`nlips infer FRAME --figures full`: normals and depth, no truth) is two panels wide:
+    the normal-colour key under it was cut at both edges."""
+    from nlipscalib.report.figures import MIN_TEXT_PX, NORMALS_KEY, SHEET_DPI, sheet_figure
+
+    n = np.zeros((120, 160, 3))
+    n[..., 2] = -1.0
+    panels = [Panel("normals", normals_to_rgb(n)), Panel("indentation", np.ones((120, 160)), label="mm")]
+    title = "a frame with a long name, NLiPsNet, pixels u 100-159, v 0-119, and more words than fit"
+    fig = sheet_figure([("", panels)], NORMALS_KEY, title)
+    assert _smallest_text_px(fig, SHEET_DPI) >= MIN_TEXT_PX  # every text inside the figure
+    texts = {t.get_text().replace("\n", " "): t for t in fig.texts}
+    assert set(texts) == {NORMALS_KEY, title} and all("\n" in t.get_text() for t in texts.values())
+    renderer = fig.canvas.get_renderer()
+    images = [ax.get_window_extent(renderer) for ax in fig.axes]
+    headings = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_title()]
+    assert texts[title].get_window_extent(renderer).y0 >= max(b.y1 for b in images + headings)  # over the panels
+    assert texts[NORMALS_KEY].get_window_extent(renderer).y1 <= min(b.y0 for b in images)  # under them

@@ -179,6 +179,10 @@ a fixed 0.5 in held two lines; the experiments' three-line titles ("sphere, true
 touched the sheet's edge and the images."""
 SHEET_TITLE_IN, CAPTION_IN, MARGIN_IN = 0.3, 0.35, 0.1
 """Heights of the sheet's title line and caption line, and the margin where there is none, inches."""
+TITLE_PT, CAPTION_PT = 10, 8
+"""Font sizes of a sheet's title and caption, points."""
+LINE_SPACING = 1.2
+"""Height of a line of text in font sizes (matplotlib's own spacing): the room a wrapped title or caption adds."""
 
 
 def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: str = "") -> Figure:
@@ -204,17 +208,21 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
     barred = [any(c < len(panels) and _has_bar(panels[c]) for _, panels in rows) for c in range(ncols)]
     columns = np.cumsum([left] + [image_w + (BAR_ROOM_IN if bar else GAP_IN) for bar in barred])  # left edges
     width = columns[-1] + MARGIN_IN
-    height = (
-        (SHEET_TITLE_IN if title else MARGIN_IN)
-        + sum(TITLE_ROOM_IN + image_h + legend for legend in legends)
-        + (CAPTION_IN if caption else MARGIN_IN)
+    # a two-panel sheet (an image frame's summary: normals, depth) is narrower than the normal-colour key: it was cut
+    # at both edges. The title and the caption are broken into lines that fit, and the sheet grows to hold them
+    title, caption = (
+        wrap_text(title, TITLE_PT, width - 2 * MARGIN_IN),
+        wrap_text(caption, CAPTION_PT, width - 2 * MARGIN_IN),
     )
+    title_in = SHEET_TITLE_IN + title.count("\n") * TITLE_PT * LINE_SPACING / 72 if title else MARGIN_IN
+    caption_in = CAPTION_IN + caption.count("\n") * CAPTION_PT * LINE_SPACING / 72 if caption else MARGIN_IN
+    height = title_in + sum(TITLE_ROOM_IN + image_h + legend for legend in legends) + caption_in
     fig = new_figure(figsize=(width, height))
 
     def box(x: float, y: float, w: float, h: float) -> tuple[float, float, float, float]:
         return x / width, y / height, w / width, h / height  # inches from the bottom left -> figure fractions
 
-    top = height - (SHEET_TITLE_IN if title else MARGIN_IN)
+    top = height - title_in
     for (row_title, panels), legend in zip(rows, legends):
         bottom = top - TITLE_ROOM_IN - image_h
         for c, panel in enumerate(panels):
@@ -230,10 +238,45 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
             )
         top = bottom - legend
     if title:
-        fig.text(0.5, 1 - SHEET_TITLE_IN / 2 / height, title, ha="center", va="center", fontsize=10)
+        fig.text(0.5, 1 - title_in / 2 / height, title, ha="center", va="center", fontsize=TITLE_PT)
     if caption:
-        fig.text(0.5, CAPTION_IN / 2 / height, caption, ha="center", va="center", fontsize=8)
+        fig.text(0.5, caption_in / 2 / height, caption, ha="center", va="center", fontsize=CAPTION_PT)
     return fig
+
+
+WIDEST_GLYPH_EM = 1.0
+"""Advance of the widest character of matplotlib's default font (DejaVu Sans: "W", "@", "—" <= 1 em), in font
+sizes: a text of n characters is at most n em wide, and one that fits so is not measured (~2-7 ms a text)."""
+WRAP_SAFETY = 0.95
+"""Share of the room a wrapped line may fill: :func:`wrap_text` spreads the text's measured width evenly over its
+characters, and a line of wider ones may come out a little wider than that."""
+
+
+def wrap_text(text: str, size_pt: float, width_in: float) -> str:
+    """``text`` broken at spaces into lines that fit ``width_in`` in matplotlib's default font at ``size_pt``.
+
+    A text that fits however wide its characters (:data:`WIDEST_GLYPH_EM`) is returned as it is; another is measured
+    once by the Agg renderer, and one wider than the room is broken by :mod:`textwrap` at the characters per line
+    its mean character width allows (measuring word by word cost ~0.1 s a sheet on a loaded machine).
+
+    Parameters
+    ----------
+    text : one line ("" stays "")
+    size_pt : font size, points
+    width_in : the room, inches
+    """
+    import textwrap
+
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    if len(text) * WIDEST_GLYPH_EM * size_pt / 72 <= width_in:  # fits even in the widest characters
+        return text
+    # at 72 dpi a pixel is a point
+    wide = RendererAgg(1, 1, 72).get_text_width_height_descent(text, FontProperties(size=size_pt), ismath=False)[0]
+    if wide / 72 <= width_in:
+        return text
+    return "\n".join(textwrap.wrap(text, max(1, int(len(text) * width_in * 72 * WRAP_SAFETY / wide))))
 
 
 def row_title_width(titles: Iterable[str]) -> float:
