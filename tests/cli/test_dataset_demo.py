@@ -140,3 +140,20 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog, monkeypatch):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         assert "presses of this very spec are kept" in " ".join(capsys.readouterr().out.split())
+
+
+def test_the_demo_sheet_shows_a_few_presses_of_a_large_spec_and_says_so(tmp_path, capsys, monkeypatch):
+    """`nlips demo --spec train50` drew a row per press: a sheet ~11400 px tall. It shows the first SHEET_PRESSES."""
+    from nlipscalib.cli import demo
+    from nlipscalib.report import figures
+
+    sheets = []
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or save(fig, path, dpi))
+    monkeypatch.setattr(demo, "SHEET_PRESSES", 1)
+    spec = tmp_path / "two.toml"
+    spec.write_text(SPEC, encoding="utf-8")  # two presses
+    assert main(["demo", "--spec", str(spec), "--out", str(tmp_path / "demo"), "--no-solve"]) == 0
+    titles = [t.get_text().replace("\n", " ") for t in sheets[-1].texts]  # a long title is wrapped
+    assert "press_0001" in " ".join(titles) and "press_0002" not in " ".join(titles)
+    assert any(t.endswith("; the first 1 of 2 presses") for t in titles)
