@@ -719,3 +719,222 @@ def test_figures_leave_a_notebooks_pyplot_alone(tmp_path):
         plt.close("all")
         plt.switch_backend(before)
     assert all((tmp_path / name).read_bytes()[:4] == b"\x89PNG" for name in ("sheet.png", "curve.png", "bars.png"))
+
+
+def _smallest_text_px(fig, dpi: float) -> float:
+    """The smallest text drawn on ``fig`` saved at ``dpi``, pixels tall (font size in points x dpi / 72); asserts
+    that every text drawn lies inside the figure (a label running off its edge is cut in the PNG)."""
+    from matplotlib.text import Text
+
+    drawn = []
+    draw = Text.draw
+
+    def record(text, renderer):  # only what is drawn: tick labels beyond the axes' limits are made, not drawn
+        if text.get_visible() and text.get_text().strip():
+            drawn.append((text, text.get_window_extent(renderer)))
+        return draw(text, renderer)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Text, "draw", record)
+        fig.canvas.draw()
+    frame = fig.bbox.padded(1.0)  # a pixel of rounding
+    outside = [
+        t.get_text() for t, box in drawn if not (frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1))
+    ]
+    assert outside == []
+    return min(t.get_fontsize() for t, _ in drawn) * dpi / 72
+
+
+def _kept_figures(monkeypatch, module) -> list:
+    """The figures ``module._save(fig, path)`` is given, in order (saved as usual)."""
+    kept = []
+    save = module._save
+    monkeypatch.setattr(module, "_save", lambda fig, path: kept.append(fig) or save(fig, path))
+    return kept
+
+
+def test_every_figure_text_is_readable_at_its_saved_dpi(tmp_path, monkeypatch):
+    """The experiment charts were saved at 80 dpi: their 7-pt legends (the methods' names) were 7.8 px tall."""
+    from nlipscalib.report import experiments, learn
+    from nlipscalib.report.figures import MIN_TEXT_PX, SHEET_DPI, sheet_figure
+
+    charts, curves = _kept_figures(monkeypatch, experiments), _kept_figures(monkeypatch, learn)
+    series = {"NLiPsNet (NLiPs labels)": ([2.4, 4.8], [0.1, 0.2]), "lookup table": ([7.4, float("nan")], [0, 0])}
+    experiments.grouped_bars(["seen", "unseen"], series, "AAE (°)", tmp_path / "b.png", {"paper": 3.3}, title="t")
+    sweeps = {"design LEDs": ([0.0, 5.0], [0.99, 1.13], [0.0, 0.0])}
+    experiments.sweep(sweeps, "LED axis error (°)", "AAE (°)", tmp_path / "s.png", title="t")
+    history = [
+        {"epoch": e, "train_loss": 0.1 / (e + 1), "val_aae_deg": 3.0, "val_contact_aae_deg": 3.1} for e in range(4)
+    ]
+    learn.training_curve(history, tmp_path / "c.png", val_presses=["sphere"])
+    learn.training_curve(
+        history, tmp_path / "c.png", val_presses=[f"sphere-p{i}.1-a15.2-d1.05-86cb5640ea" for i in range(3)]
+    )
+    for ylabel in ("AAE in the contact (°)", experiments.MABSE_LABEL):  # the labels Q1 and the ablation draw
+        experiments.sweep({"twin": ([3, 12, 24], [0.0097, 0.0081, 0.0062], [0.0] * 3)}, "LEDs", ylabel, tmp_path / "m")
+    names = ["no bounce, uncorrected", "1 bounce, uncorrected", "1 bounce, reference + dent corrected"]
+    experiments.sweep(
+        {"AAE": (names, [0.7, 8.1, 1.0], [0.0] * 3)}, "render", "AAE (°)", tmp_path / "i", categorical=True
+    )
+    learn.coverage_figure(_down_tilt_coverage(cells=4), tmp_path / "cov.png")  # `nlips calibrate`'s 4 x 4
+    for fig in charts:
+        assert _smallest_text_px(fig, experiments.DPI) >= MIN_TEXT_PX
+    for fig in curves:
+        assert _smallest_text_px(fig, learn.DPI) >= MIN_TEXT_PX
+    n = np.zeros((12, 16, 3))
+    n[..., 2] = -1.0
+    err = np.full((12, 16), 0.5)
+    rows = [("sphere", [Panel("normals", normals_to_rgb(n)), Panel("error", err, "inferno", "deg", 0.0, 1.0)])]
+    assert _smallest_text_px(sheet_figure(rows, "caption", "title"), SHEET_DPI) >= MIN_TEXT_PX
+    assert _smallest_text_px(sheet_figure(rows, "caption", "title"), experiments.DPI) >= MIN_TEXT_PX
+
+
+def test_three_line_row_titles_stay_inside_the_sheet_and_off_the_images():
+    """Q1's and Q3's rows are titled in three lines (labels, press, contact AAE): in a fixed 0.5 in margin they
+    touched the sheet's left edge and the first image."""
+    from nlipscalib.report.figures import sheet_figure
+
+    n = np.zeros((40, 40, 3))
+    n[..., 2] = -1.0
+    title = "sphere, calibrated\nsphere-p15-a30-d1\ncontact AAE 0.96 deg"
+    fig = sheet_figure([(title, [Panel("true normals", normals_to_rgb(n))])])
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    text = next(t for t in fig.texts if t.get_text() == title).get_window_extent(renderer)
+    image = fig.axes[0].get_window_extent(renderer)
+    assert text.x0 >= 0 and text.x1 <= image.x0
+
+
+def test_experiment_figures_are_titled_with_their_report_caption(tmp_path, monkeypatch):
+    """A chart or sheet opened alone (not in report.md) said nothing of what it shows: each is titled with the
+    caption report.md gives it. MabsE's axis says what it measures."""
+    from nlipscalib.experiments.q1 import Q1
+    from nlipscalib.report import experiments, figures
+
+    charts = _kept_figures(monkeypatch, experiments)
+    rows = [
+        {"indenter": kind, "leds": leds, "aae_deg": 1.0, "mabse": 0.01, "error": None}
+        for kind in ("sphere", "cube")
+        for leds in ("true", "calibrated")
+    ]
+    figs = Q1().figures(None, rows, [], tmp_path)
+    assert [fig.axes[0].get_title() for fig in charts] == [caption for caption, _ in figs]
+    assert charts[1].axes[0].get_ylabel() == experiments.MABSE_LABEL == "MabsE in the contact (unitless)"
+    sheets = []
+    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or Path(path))
+    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
+    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
+    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    experiments.error_maps([("sphere", n, n, np.full((6, 8), 0.4))], tmp_path / "e.png", title="Q1 maps")
+    view = {"rgb": n, "true": n, "estimate": n, "error": np.full((6, 8), 0.4)}
+    experiments.nlipsnet_maps([("seen: sphere", view)], tmp_path / "n.png", title="Q2 maps")
+    assert [[t.get_text() for t in fig.texts if t.get_text().startswith("Q")] for fig in sheets] == [
+        ["Q1 maps"],
+        ["Q2 maps"],
+    ]
+
+
+def test_a_categorical_sweep_draws_no_line_between_its_settings(tmp_path, monkeypatch):
+    """The interreflection study's settings (no bounce, 1 bounce uncorrected, corrected...) have no order: a line
+    through them drew a trend."""
+    from nlipscalib.report import experiments
+
+    charts = _kept_figures(monkeypatch, experiments)
+    series = {"AAE": (["no bounce", "1 bounce", "corrected"], [0.6, 8.1, 1.0], [0.0, 0.0, 0.0])}
+    experiments.sweep(series, "render / correction", "AAE (°)", tmp_path / "c.png", categorical=True)
+    experiments.sweep({"AAE": ([0.0, 1.0], [0.9, 1.0], [0.0, 0.0])}, "noise", "AAE (°)", tmp_path / "n.png")
+    styles = [[line.get_linestyle() for line in fig.axes[0].lines] for fig in charts]
+    assert styles[0] and all(s == "None" for s in styles[0])
+    assert "-" in styles[1]
+
+
+def test_every_error_panel_has_one_colour_map_and_unit(monkeypatch):
+    """The demo's and the experiments' sheets labelled their error colour bars "degrees", the summary and
+    error.png "deg": one helper draws them all now."""
+    from nlipscalib.cli.demo import _error_panel
+    from nlipscalib.report import experiments
+    from nlipscalib.report.figures import ERROR_CMAP, ERROR_UNIT, error_panel
+
+    sheets = []
+    monkeypatch.setattr(experiments, "contact_sheet", lambda rows, path, **kw: sheets.append(rows) or Path(path))
+    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
+    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
+    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
+    err = np.full((6, 8), 0.4)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    experiments.error_maps([("sphere", n, n, err)], "e.png")
+    experiments.nlipsnet_maps([("sphere", {"rgb": n, "true": n, "estimate": n, "error": err})], "n.png")
+    panels = [_error_panel(err), error_panel("angular error", err)] + [rows[0][1][-1] for rows in sheets]
+    assert [(p.cmap, p.label, p.vmin, p.vmax) for p in panels] == [(ERROR_CMAP, ERROR_UNIT, 0.0, 1.0)] * 4
+
+
+def test_training_curve_names_its_validation_presses(tmp_path, monkeypatch):
+    """`nlips train` prints "validation AAE 3.60 deg ... on sphere"; its curve said "NLiPsNet 64,64,64" only."""
+    from nlipscalib.report import learn
+
+    curves = _kept_figures(monkeypatch, learn)
+    history = [{"epoch": 0, "train_loss": 0.1, "val_aae_deg": 3.6, "val_contact_aae_deg": 3.96}]
+    learn.training_curve(history, tmp_path / "c.png", "NLiPsNet 64,64,64", ["sphere"])
+    assert curves[0]._suptitle.get_text() == "NLiPsNet 64,64,64, validation press sphere"
+    assert learn.validation_line(["a", "b"]) == ", validation presses a, b"
+    assert learn.validation_line([f"p{i}" for i in range(10)]) == ", validation presses " + ", ".join(
+        f"p{i}" for i in range(10)
+    )
+    long = ["sphere-p12.1-a15.2-d1.05-86cb5640ea-584aae", "cube-p9.4-a287.5-d1.18-86cb5640ea-df01e4"]
+    assert learn.validation_line(long) == ", 2 validation presses"  # names this long would run off the figure
+    assert learn.validation_line([]) == ""
+
+
+def test_a_summary_of_a_region_says_where_it_lies_in_the_image(tmp_path, monkeypatch):
+    """A `--roi auto` summary showed a crop without axes or a word of which part of the capture it was."""
+    from nlipscalib.report import figures, write_reconstruction_figures
+    from nlipscalib.report.reconstruction import box_words
+
+    sheets = {}
+    monkeypatch.setattr(figures, "contact_sheet", lambda rows, path, **kw: sheets.update(rows=rows, **kw) or path)
+    rec = _reconstruction(h=12, w=16)
+    rec.mask[:] = False
+    rec.mask[3:9, 5:12] = True
+    write_reconstruction_figures(tmp_path, rec, None, "full", name="sphere")
+    assert sheets["title"] == "sphere, NLiPs, pixels u 5-11, v 3-8"
+    assert box_words((slice(None), slice(None)), (12, 16)) == ""
+
+
+def test_the_response_figures_key_shows_its_measured_points_large_enough_to_see(tmp_path, monkeypatch):
+    """The cloud's 2-pt dots were as small in the legend: "measured (green)" stood beside an invisible key."""
+    from nlipscalib.report import camera_response
+    from nlipscalib.report.figures import MIN_TEXT_PX
+
+    figures = []
+    save = camera_response.save_png
+    monkeypatch.setattr(camera_response, "save_png", lambda fig, path, dpi: figures.append(fig) or save(fig, path, dpi))
+    codes = np.arange(256.0)
+    linear = (codes / 255) ** 2.2
+    camera_response.response_figure(linear, np.stack([linear] * 3, 1), (codes, linear), tmp_path / "r.png", "cam")
+    ax = figures[0].axes[0]
+    key = next(h for h in ax.get_legend().legend_handles if hasattr(h, "get_sizes"))
+    assert key.get_sizes()[0] >= 8 * ax.collections[0].get_sizes()[0]
+    assert _smallest_text_px(figures[0], camera_response.DPI) >= MIN_TEXT_PX
+
+
+def test_a_narrow_sheets_title_and_caption_are_wrapped_inside_it():
+    """An image frame's summary (`nlips infer FRAME --figures full`: normals and depth, no truth) is two panels wide:
+    the normal-colour key under it was cut at both edges."""
+    from nlipscalib.report.figures import MIN_TEXT_PX, NORMALS_KEY, SHEET_DPI, sheet_figure
+
+    n = np.zeros((120, 160, 3))
+    n[..., 2] = -1.0
+    panels = [Panel("normals", normals_to_rgb(n)), Panel("indentation", np.ones((120, 160)), label="mm")]
+    title = "a frame with a long name, NLiPsNet, pixels u 100-159, v 0-119, and more words than fit"
+    fig = sheet_figure([("", panels)], NORMALS_KEY, title)
+    assert _smallest_text_px(fig, SHEET_DPI) >= MIN_TEXT_PX  # every text inside the figure
+    texts = {t.get_text().replace("\n", " "): t for t in fig.texts}
+    assert set(texts) == {NORMALS_KEY, title} and all("\n" in t.get_text() for t in texts.values())
+    renderer = fig.canvas.get_renderer()
+    images = [ax.get_window_extent(renderer) for ax in fig.axes]
+    headings = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_title()]
+    assert texts[title].get_window_extent(renderer).y0 >= max(b.y1 for b in images + headings)  # over the panels
+    assert texts[NORMALS_KEY].get_window_extent(renderer).y1 <= min(b.y0 for b in images)  # under them

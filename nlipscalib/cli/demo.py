@@ -21,6 +21,11 @@ if TYPE_CHECKING:  # named in hints only: imported when the demo runs
     from ..report import Panel
 
 
+SHEET_PRESSES = 8
+"""Presses the contact sheet shows at most, a row each (the first ones; the scores' table has them all): `nlips demo
+--spec train50` drew 50 rows, a 1468 x ~11400 px sheet of 250 panels."""
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
@@ -101,17 +106,34 @@ def run(args: argparse.Namespace) -> int:
         title = f"{job.name}\n{job.press.indenter.kind}, {job.press.depth:.1f} mm"
         solve = not args.no_solve and job.name not in failed
         result = _solve(press, figures=not args.no_figures) if solve else None  # solved above: this loads it
-        rows.append((title, _panels(press, result)))
+        if len(rows) < SHEET_PRESSES:
+            rows.append((title, _panels(press, result)))
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
     from ..report import contact_sheet
     from ..report.figures import NORMALS_KEY
 
-    sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY)
+    title = _sheet_title(Path(spec.scene).stem, scene.camera.width, scene.camera.height, not args.no_solve)
+    if len(rows) < len(presses):  # the table below still scores every press
+        title += f"; the first {len(rows)} of {len(presses)} presses"
+    sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY, title=title)
     print_result(sheet)  # stdout: the demo's product, the contact sheet, alone (scripts); its scores on stderr
     _say_table(table)
     say(f"contact sheet: {sheet}")
     return 1 if failed else 0
+
+
+def _sheet_title(scene: str, width: int, height: int, solved: bool) -> str:
+    """The contact sheet's title: what it shows, of which twin (the sheet opened alone said nothing of it).
+
+    Parameters
+    ----------
+    scene : the spec's scene name
+    width, height : the presses' image size, pixels
+    solved : whether the presses were reconstructed (not ``--no-solve``)
+    """
+    shown = "NLiPs around each press's contact vs the true normals" if solved else "the true normals (--no-solve)"
+    return f"nlips demo on the {scene} twin ({width}x{height} px): {shown}"
 
 
 def _solve(press: Press, figures: bool) -> Reconstruction | None:
@@ -159,12 +181,11 @@ def _error_panel(err: np.ndarray, contact: np.ndarray | None = None) -> Panel:
     (``error_scale``): a fixed 0-10 deg, or one range shared with a coin's 20-deg edges, showed the sphere's and
     the cube's half-degree errors as black squares. The rows compare by their AAE and colour bars. The title gives
     the contact AAE too (``contact``: the truth's (H, W) bool contact region), as the table and the summary do."""
-    from ..report import Panel
-    from ..report.figures import ERROR_CMAP, error_scale
+    from ..report.figures import error_panel
     from ..report.reconstruction import error_title
 
     # the table's "AAE roi" (every scored pixel) and "AAE contact"
-    return Panel(error_title(err, contact), err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
+    return error_panel(error_title(err, contact), err)
 
 
 def _say_table(table: list[tuple[str, str, dict]]) -> None:

@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
             if older := _older_model(out):
                 log.warning("%s", older)
             return 0
-        training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}")
+        training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}", result.val_presses)
         best = result.history[result.best_epoch]
         summary = (  # epochs numbered from 1 here (the stored history counts from 0)
             f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "

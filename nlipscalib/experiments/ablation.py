@@ -81,20 +81,23 @@ class Ablation(Experiment):
         main = tables[0].rows
         x = [r["leds"] for r in main]
         paper = {"paper (real sensor)": (list(PAPER_AAE), list(PAPER_AAE.values()))}
+        figs = [
+            ("AAE against the number of LEDs, with the paper's", "ablation_aae.png"),
+            ("MabsE against the number of LEDs", "ablation_mabse.png"),
+        ]
         fig.sweep(
             {"twin": (x, [r["aae_deg"] for r in main], [r["aae_deg_std"] for r in main])},
             "number of LEDs",
             "AAE in the contact (°)",
-            folder / "ablation_aae.png",
+            folder / figs[0][1],
             paper,
+            title=figs[0][0],
         )
         fig.sweep(
             {"twin": (x, [r["mabse"] for r in main], [r["mabse_std"] for r in main])},
             "number of LEDs",
-            "MabsE in the contact",
-            folder / "ablation_mabse.png",
+            fig.MABSE_LABEL,
+            folder / figs[1][1],
+            title=figs[1][0],
         )
-        return [
-            ("AAE against the number of LEDs, with the paper's", "ablation_aae.png"),
-            ("MabsE against the number of LEDs", "ablation_mabse.png"),
-        ]
+        return figs

@@ -92,5 +92,5 @@ def draw_error_maps(
     maps = map_rows(rows, out, key, limit)
     if not maps:
         return []
-    fig.error_maps(maps, Path(folder) / figure.file)
+    fig.error_maps(maps, Path(folder) / figure.file, title=figure.caption)
     return [figure]

@@ -136,5 +136,6 @@ class PressCount(Q2):
         paper = {"paper (50 presses, vs NLiPs)": ([50, 50], [PAPER["seen_aae_deg"], PAPER["unseen_aae_deg"]])}
         if max(learned["counts"]) < 25:  # a sweep far from the paper's 50 presses: the marker would squash it
             paper = {}
-        fig.sweep(series, "calibration presses", "AAE on the test contact (°)", folder / "presses_aae.png", paper)
-        return [("Test AAE against the number of calibration presses", "presses_aae.png")]
+        caption, name = "Test AAE against the number of calibration presses", "presses_aae.png"
+        fig.sweep(series, "calibration presses", "AAE on the test contact (°)", folder / name, paper, title=caption)
+        return [(caption, name)]

@@ -82,14 +82,17 @@ class Q1(Experiment):
     def figures(
         self, cfg: Q1Config, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
     ) -> list[tuple[str, str]]:
-        cats, aae = series_by(rows, "indenter", "leds", "aae_deg")
-        fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / "q1_aae.png", {"paper, real sensor": 7.04})
-        cats, mab = series_by(rows, "indenter", "leds", "mabse")
-        fig.grouped_bars(cats, mab, "MabsE in the contact", folder / "q1_mabse.png", {"paper, real sensor": 0.0588})
-        return [
+        figs = [
             ("AAE per indenter and LED source", "q1_aae.png"),
             ("MabsE per indenter and LED source", "q1_mabse.png"),
         ]
+        cats, aae = series_by(rows, "indenter", "leds", "aae_deg")
+        paper = {"paper, real sensor": 7.04}
+        fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / figs[0][1], paper, title=figs[0][0])
+        cats, mab = series_by(rows, "indenter", "leds", "mabse")
+        paper = {"paper, real sensor": 0.0588}
+        fig.grouped_bars(cats, mab, fig.MABSE_LABEL, folder / figs[1][1], paper, title=figs[1][0])
+        return figs
 
     def draw_work_figures(
         self, cfg: Q1Config, rows: list[dict], out: Path, folder: Path, learned: dict | None = None

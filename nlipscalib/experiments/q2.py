@@ -307,9 +307,11 @@ class Q2(Experiment):
             for m in methods:
                 found = {r["split"]: r[key] for r in scores if r["method"] == m}
                 series[m] = ([_nan(found.get(s)) for s in splits], [0.0] * len(splits))
-            fig.grouped_bars(splits, series, f"AAE {label} (°)", folder / name, lines)
-            figs.append((f"AAE on the test presses' contact samples {label}", name))
-        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"])
+            caption = f"AAE on the test presses' contact samples {label}"
+            fig.grouped_bars(splits, series, f"AAE {label} (°)", folder / name, lines, title=caption)
+            figs.append((caption, name))
+        validation = learned["models"]["nlipsnet"]["val_presses"]
+        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"], validation)
         figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
         return figs
 
@@ -329,7 +331,7 @@ class Q2(Experiment):
         views = learning.predicted_views(out, predict, list(titles))
         if not views:
             return []
-        fig.nlipsnet_maps([(titles[n], v) for n, v in views], folder / NORMALS.file)
+        fig.nlipsnet_maps([(titles[n], v) for n, v in views], folder / NORMALS.file, title=NORMALS.caption)
         return [NORMALS]
 
 

@@ -113,14 +113,16 @@ class Q3(Experiment):
     ) -> list[tuple[str, str]]:
         true_rows = [r for r in rows if r["leds"] == cfg.leds[0]]
         cats, aae = series_by(true_rows, "shape", "indenter", "aae_deg")
+        caption, name = "AAE per dome shape and indenter", "q3_aae.png"
         fig.grouped_bars(
             cats,
             aae,
             f"AAE in the contact (°), {cfg.leds[0]} LEDs",
-            folder / "q3_aae.png",
+            folder / name,
             {"paper bound": PAPER_BOUND_DEG},
+            title=caption,
         )
-        return [("AAE per dome shape and indenter", "q3_aae.png")]
+        return [(caption, name)]
 
     def draw_work_figures(
         self, cfg: Q3Config, rows: list[dict], out: Path, folder: Path, learned: dict | None = None

@@ -175,6 +175,7 @@ class Studies(Experiment):
                 "AAE in the contact (°)",
                 folder / name,
                 categorical=t.name == "interreflection",
+                title=t.caption,
             )
             figs.append((t.caption, name))
         return figs

@@ -10,32 +10,35 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 from .figures import (
-    ERROR_CMAP,
     NORMALS_KEY,
     Panel,
     contact_sheet,
     display_image,
+    error_panel,
     error_scale,
     new_figure,
     normals_to_rgb,
+    png_bytes,
 )
 
 if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-DPI = 80
-"""Reports are committed to the repository: keep the PNGs small."""
-MAPS_DPI = 100
-"""Resolution of the error-map sheets: at 60 dpi their 7-pt colour-bar numbers were 4-5 px tall and could not be
-read; at 100 they are 8-10 px, and the palette PNG keeps the sheet small (see ``test_report``)."""
+DPI = 100
+"""Resolution of every report figure, charts and map sheets: their smallest text, 7 pt (legends, colour-bar
+numbers), is then 9.7 px tall (:data:`.figures.MIN_TEXT_PX`). The charts were saved at 80 dpi to keep the committed
+PNGs small, their legends 7.8 px tall and unreadable; the palette PNG keeps them small (a chart ~10 kB)."""
+TITLE_PT = 9
+"""Font size of a chart's title (the caption report.md gives it), points."""
+MABSE_LABEL = "MabsE in the contact (unitless)"
+"""The y axis of the MabsE charts: MabsE, the mean absolute error of the unit normals' components (core.metrics),
+has no unit, which the bare "MabsE in the contact" did not say (naming the components ran off a 3.2-in axis)."""
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
-    return write_bytes(path, _palette_png(buf.getvalue()))
+    return write_bytes(path, _palette_png(png_bytes(fig, DPI)))
 
 
 PALETTE_MAX_ERROR = 3.0
@@ -82,6 +85,7 @@ def grouped_bars(
     ylabel: str,
     path: str | Path,
     lines: dict[str, float] | None = None,
+    title: str = "",
 ) -> Path:
     """Bars of ``series`` (label -> (means, standard deviations) per category) with horizontal reference lines.
 
@@ -91,6 +95,7 @@ def grouped_bars(
     series : label -> (means, stds), each of len(categories); a NaN mean is marked "n/a", a std of 0 or NaN
         draws no error bar
     lines : label -> value drawn as a dashed horizontal line (e.g. the paper's real-sensor number)
+    title : what the chart shows (report.md's caption of it), over the axes: the PNG opened alone says it too
     """
     fig, ax = _figure(max(4.0, 1.1 * len(categories) + 2), 3.2)
     x = np.arange(len(categories))
@@ -111,6 +116,7 @@ def grouped_bars(
         ax.axhline(value, ls="--", lw=1, color=f"C{len(series) + j}", label=label)
     ax.set_xticks(x, categories, fontsize=8)
     ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=TITLE_PT)
     _legend_outside(fig, ax)
     return _save(fig, path)
 
@@ -122,23 +128,28 @@ def sweep(
     path: str | Path,
     paper: dict[str, tuple[list, list[float]]] | None = None,
     categorical: bool = False,
+    title: str = "",
 ) -> Path:
     """Curves of a parameter sweep: label -> (x values, means, standard deviations); paper points as markers.
 
-    ``categorical``: x values are names (placed at 0, 1, 2...).
+    ``categorical``: x values are names (placed at 0, 1, 2...). ``title``: what the chart shows (report.md's
+    caption of it), over the axes.
     """
     fig, ax = _figure()
     ticks = None
     for label, (x, mean, std) in series.items():
         xs = np.arange(len(x)) if categorical else np.asarray(x, float)
         ticks = x if categorical else ticks
-        ax.errorbar(xs, mean, yerr=std, marker="o", ms=4, capsize=2, label=label)
+        # names have no order: markers alone (a line between "1 bounce, uncorrected" and "reference-corrected"
+        # drew a trend between unrelated settings)
+        ax.errorbar(xs, mean, yerr=std, marker="o", ms=4, capsize=2, label=label, ls="none" if categorical else "-")
     for label, (x, y) in (paper or {}).items():
         ax.plot(np.asarray(x, float), y, "k*", ms=9, label=label)
     if ticks is not None:
         ax.set_xticks(np.arange(len(ticks)), [str(t) for t in ticks], fontsize=8, rotation=15)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=TITLE_PT)
     _from_zero(ax)
     _legend_outside(fig, ax)
     return _save(fig, path)
@@ -161,7 +172,10 @@ def _from_zero(ax: Axes) -> None:
 
 
 def error_maps(
-    rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: str | Path, vmax: float | None = None
+    rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
+    path: str | Path,
+    vmax: float | None = None,
+    title: str = "",
 ) -> Path:
     """One row per press: true normals, estimated normals, angular error (degrees, colour bar).
 
@@ -170,23 +184,22 @@ def error_maps(
     rows : (title, true (h, w, 3) float, estimate (h, w, 3) float, error (h, w) float degrees); NaN = not solved
     vmax : upper end of every error colour bar, degrees (None: each row's :func:`error_scale`, see
         :func:`row_error_scale`)
+    title : what the sheet shows (report.md's caption of it), over the grid
     """
     sheet = []
-    for title, true, est, err in rows:
+    for row_title, true, est, err in rows:
         shown = np.isfinite(err)
         sheet.append(
             (
-                title,
+                row_title,
                 [
                     Panel("true normals", normals_to_rgb(true, shown)),
                     Panel("NLiPs normals", normals_to_rgb(est, shown)),
-                    Panel(
-                        "angular error", err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=row_error_scale(err, vmax)
-                    ),
+                    error_panel("angular error", err, row_error_scale(err, vmax)),
                 ],
             )
         )
-    contact_sheet(sheet, path, dpi=MAPS_DPI, caption=NORMALS_KEY)
+    contact_sheet(sheet, path, dpi=DPI, caption=NORMALS_KEY, title=title)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
 
 
@@ -195,6 +208,7 @@ def nlipsnet_maps(
     path: str | Path,
     vmax: float | None = None,
     method: str = "NLiPsNet",
+    title: str = "",
 ) -> Path:
     """The paper's NLiPsNet figure: per press, the object, true normals, predicted normals, angular error.
 
@@ -204,29 +218,23 @@ def nlipsnet_maps(
         "estimate": (h, w, 3) unit normals, "error": (h, w) degrees}); NaN = off the gel
     vmax : upper end of every error colour bar, degrees (None: each row's :func:`error_scale`, see
         :func:`row_error_scale`)
+    title : what the sheet shows (report.md's caption of it), over the grid
     """
     sheet = []
-    for title, v in rows:
+    for row_title, v in rows:
         shown = np.isfinite(v["error"])
         sheet.append(
             (
-                title,
+                row_title,
                 [
                     Panel("object (tri-colour image)", display_image(v["rgb"])),  # as the demo shows it
                     Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
                     Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
-                    Panel(
-                        "angular error",
-                        v["error"],
-                        cmap=ERROR_CMAP,
-                        label="degrees",
-                        vmin=0,
-                        vmax=row_error_scale(v["error"], vmax),
-                    ),
+                    error_panel("angular error", v["error"], row_error_scale(v["error"], vmax)),
                 ],
             )
         )
-    contact_sheet(sheet, path, dpi=MAPS_DPI, caption=NORMALS_KEY)
+    contact_sheet(sheet, path, dpi=DPI, caption=NORMALS_KEY, title=title)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
 
 

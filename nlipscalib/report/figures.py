@@ -30,6 +30,12 @@ maps, scalar panels and the OpenCV maps alike. Not black: in the error colour ma
 sheets drew off-gel pixels black in the normal panels beside grey in the error panel."""
 ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
 """Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
+ERROR_UNIT = "deg"
+"""Unit label of every angular-error colour bar (the OpenCV error.png's, the sheets'), as the AAE titles write it:
+the sheets said "degrees" beside a summary's and error.png's "deg"."""
+MIN_TEXT_PX = 9.0
+"""Smallest text a saved figure may hold, pixels tall (font size in points x dpi / 72). The experiment charts,
+saved at 80 dpi, had 7-pt legends 7.8 px tall: the method names could not be read."""
 
 
 def new_figure(**kwargs: object) -> Figure:
@@ -109,8 +115,38 @@ class Panel:
     as a legend of its colours instead of a colour bar, whose continuous 0-1 scale means nothing there."""
 
 
+def error_panel(title: str, error: np.ndarray, vmax: float | None = None) -> Panel:
+    """The angular-error panel of every sheet (demo, summary, experiment maps): :data:`ERROR_CMAP` from 0 to ``vmax``
+    (None: :func:`error_scale` of ``error``), its colour bar in :data:`ERROR_UNIT`.
+
+    Parameters
+    ----------
+    title : the panel's title (its AAE, where the caller prints one)
+    error : (h, w) float, degrees, NaN = not scored (drawn :data:`NO_VALUE_GREY`)
+    vmax : upper end of the colour bar, degrees
+    """
+    top = error_scale([error]) if vmax is None else vmax
+    return Panel(title, error, cmap=ERROR_CMAP, label=ERROR_UNIT, vmin=0.0, vmax=top)
+
+
+def png_bytes(fig: Figure, dpi: int) -> bytes:
+    """``fig`` encoded as a PNG at ``dpi`` (every figure of the package is saved through here)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def save_png(fig: Figure, path: str | Path, dpi: int) -> Path:
+    """Write ``fig`` to ``path`` as a PNG at ``dpi``, atomically; returns ``path``."""
+    return write_bytes(path, png_bytes(fig, dpi))
+
+
+SHEET_DPI = 110
+"""Default resolution of a contact sheet (its 7-pt colour-bar numbers are 10.7 px tall, :data:`MIN_TEXT_PX`)."""
+
+
 def contact_sheet(
-    rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = 110, caption: str = "", title: str = ""
+    rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = SHEET_DPI, caption: str = "", title: str = ""
 ) -> Path:
     """Save a grid of panels (one row per press) as a PNG, atomically.
 
@@ -121,10 +157,7 @@ def contact_sheet(
     caption : one line under the grid, e.g. :data:`NORMALS_KEY` on sheets with normal maps
     title : one line over the grid
     """
-    fig = sheet_figure(rows, caption, title)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return write_bytes(path, buf.getvalue())
+    return save_png(sheet_figure(rows, caption, title), path, dpi)
 
 
 PANEL_WIDTH_IN = 2.2
@@ -140,10 +173,16 @@ TITLE_ROOM_IN = 0.42
 """Height over each row's images for their titles (two lines at 9 pt), inches."""
 LEGEND_ROOM_IN = 0.3
 """Height under a row's images for a categorical panel's legend (one line at 7 pt), inches."""
-ROW_TITLE_IN = 0.5
-"""Width left of the first column for the row titles (two lines at 10 pt, turned), inches."""
+ROW_TITLE_LINE_IN, ROW_TITLE_PAD_IN = 0.18, 0.14
+"""Width left of the first column per line of the row titles (10 pt, turned), and the margins beside them, inches:
+a fixed 0.5 in held two lines; the experiments' three-line titles ("sphere, true", the press, its contact AAE)
+touched the sheet's edge and the images."""
 SHEET_TITLE_IN, CAPTION_IN, MARGIN_IN = 0.3, 0.35, 0.1
 """Heights of the sheet's title line and caption line, and the margin where there is none, inches."""
+TITLE_PT, CAPTION_PT = 10, 8
+"""Font sizes of a sheet's title and caption, points."""
+LINE_SPACING = 1.2
+"""Height of a line of text in font sizes (matplotlib's own spacing): the room a wrapped title or caption adds."""
 
 
 def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: str = "") -> Figure:
@@ -164,22 +203,26 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
     ncols = max(len(p) for _, p in rows)
     aspect = max((p.image.shape[0] / p.image.shape[1] for _, panels in rows for p in panels), default=1.0)
     image_w, image_h = PANEL_WIDTH_IN, PANEL_WIDTH_IN * aspect
-    left = ROW_TITLE_IN if any(row_title for row_title, _ in rows) else MARGIN_IN
+    left = row_title_width(row_title for row_title, _ in rows)
     legends = [LEGEND_ROOM_IN if any(p.legend for p in panels) else 0.0 for _, panels in rows]
     barred = [any(c < len(panels) and _has_bar(panels[c]) for _, panels in rows) for c in range(ncols)]
     columns = np.cumsum([left] + [image_w + (BAR_ROOM_IN if bar else GAP_IN) for bar in barred])  # left edges
     width = columns[-1] + MARGIN_IN
-    height = (
-        (SHEET_TITLE_IN if title else MARGIN_IN)
-        + sum(TITLE_ROOM_IN + image_h + legend for legend in legends)
-        + (CAPTION_IN if caption else MARGIN_IN)
+    # a two-panel sheet (an image frame's summary: normals, depth) is narrower than the normal-colour key: it was cut
+    # at both edges. The title and the caption are broken into lines that fit, and the sheet grows to hold them
+    title, caption = (
+        wrap_text(title, TITLE_PT, width - 2 * MARGIN_IN),
+        wrap_text(caption, CAPTION_PT, width - 2 * MARGIN_IN),
     )
+    title_in = SHEET_TITLE_IN + title.count("\n") * TITLE_PT * LINE_SPACING / 72 if title else MARGIN_IN
+    caption_in = CAPTION_IN + caption.count("\n") * CAPTION_PT * LINE_SPACING / 72 if caption else MARGIN_IN
+    height = title_in + sum(TITLE_ROOM_IN + image_h + legend for legend in legends) + caption_in
     fig = new_figure(figsize=(width, height))
 
     def box(x: float, y: float, w: float, h: float) -> tuple[float, float, float, float]:
         return x / width, y / height, w / width, h / height  # inches from the bottom left -> figure fractions
 
-    top = height - (SHEET_TITLE_IN if title else MARGIN_IN)
+    top = height - title_in
     for (row_title, panels), legend in zip(rows, legends):
         bottom = top - TITLE_ROOM_IN - image_h
         for c, panel in enumerate(panels):
@@ -195,10 +238,52 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
             )
         top = bottom - legend
     if title:
-        fig.text(0.5, 1 - SHEET_TITLE_IN / 2 / height, title, ha="center", va="center", fontsize=10)
+        fig.text(0.5, 1 - title_in / 2 / height, title, ha="center", va="center", fontsize=TITLE_PT)
     if caption:
-        fig.text(0.5, CAPTION_IN / 2 / height, caption, ha="center", va="center", fontsize=8)
+        fig.text(0.5, caption_in / 2 / height, caption, ha="center", va="center", fontsize=CAPTION_PT)
     return fig
+
+
+WIDEST_GLYPH_EM = 1.0
+"""Advance of the widest character of matplotlib's default font (DejaVu Sans: "W", "@", "—" <= 1 em), in font
+sizes: a text of n characters is at most n em wide, and one that fits so is not measured (~2-7 ms a text)."""
+WRAP_SAFETY = 0.95
+"""Share of the room a wrapped line may fill: :func:`wrap_text` spreads the text's measured width evenly over its
+characters, and a line of wider ones may come out a little wider than that."""
+
+
+def wrap_text(text: str, size_pt: float, width_in: float) -> str:
+    """``text`` broken at spaces into lines that fit ``width_in`` in matplotlib's default font at ``size_pt``.
+
+    A text that fits however wide its characters (:data:`WIDEST_GLYPH_EM`) is returned as it is; another is measured
+    once by the Agg renderer, and one wider than the room is broken by :mod:`textwrap` at the characters per line
+    its mean character width allows (measuring word by word cost ~0.1 s a sheet on a loaded machine).
+
+    Parameters
+    ----------
+    text : one line ("" stays "")
+    size_pt : font size, points
+    width_in : the room, inches
+    """
+    import textwrap
+
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    if len(text) * WIDEST_GLYPH_EM * size_pt / 72 <= width_in:  # fits even in the widest characters
+        return text
+    # at 72 dpi a pixel is a point
+    wide = RendererAgg(1, 1, 72).get_text_width_height_descent(text, FontProperties(size=size_pt), ismath=False)[0]
+    if wide / 72 <= width_in:
+        return text
+    return "\n".join(textwrap.wrap(text, max(1, int(len(text) * width_in * 72 * WRAP_SAFETY / wide))))
+
+
+def row_title_width(titles: Iterable[str]) -> float:
+    """Width left of a sheet's first column, inches: room for the longest row title's lines (:data:`MARGIN_IN`
+    without titles)."""
+    lines = max((len(t.splitlines()) for t in titles if t), default=0)
+    return lines * ROW_TITLE_LINE_IN + ROW_TITLE_PAD_IN if lines else MARGIN_IN
 
 
 def _has_bar(panel: Panel) -> bool:

@@ -2,24 +2,24 @@
 
 from __future__ import annotations
 
-import io
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.atomic import write_bytes
-from .figures import new_figure
+from .figures import new_figure, save_png
 
 if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
     from matplotlib.figure import Figure
     from matplotlib.projections.polar import PolarAxes
 
+DPI = 110
+"""Resolution of the coverage and training figures (their smallest text, 6 pt, is 9.2 px tall)."""
 
-def _save(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return write_bytes(path, buf.getvalue())
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    return save_png(fig, path, DPI)
 
 
 THETA_SUBSTEPS = 8
@@ -119,13 +119,17 @@ def _steep_line(steep: dict | None) -> str:
     return line
 
 
-def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet") -> Path:
+def training_curve(
+    history: list[dict], path: str | Path, title: str = "NLiPsNet", val_presses: Sequence[str] = ()
+) -> Path:
     """Training loss and validation AAE per epoch, best epoch marked; epochs numbered from 1, as `nlips train` says.
 
     Parameters
     ----------
     history : list of dicts with epoch (0-based, as stored), train_loss, val_aae_deg, val_contact_aae_deg
     path : output .png
+    title : the net (e.g. "NLiPsNet 64,64,64")
+    val_presses : the validation presses' names, named in the title (:func:`validation_line`)
     """
     from matplotlib.ticker import MaxNLocator
 
@@ -134,7 +138,7 @@ def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet
     a1, a2 = fig.subplots(1, 2)
     a1.semilogy(ep, [h["train_loss"] for h in history])
     a1.set_xlabel("epoch")
-    a1.set_ylabel("training loss 1 - n.n")
+    a1.set_ylabel(r"training loss, mean $1 - \hat{n} \cdot n$")
     a2.plot(ep, [h["val_aae_deg"] for h in history], label="validation, all samples")
     a2.plot(ep, [h["val_contact_aae_deg"] for h in history], label="validation, contact")
     best = min(history, key=lambda h: h["val_aae_deg"])
@@ -145,9 +149,30 @@ def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet
     a2.set_title(best_epoch_title(best), fontsize=9)
     for ax in (a1, a2):  # epochs are whole numbers (matplotlib would tick 2.5, 7.5, ...)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title + validation_line(val_presses), fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
+
+
+VALIDATION_NAMES_CHARS = 60
+"""Longest list of validation press names the training curve's title gives; a longer one is counted (the paper's
+10 presses, or an experiment's "sphere-p12.1-a15.2-d1.05-86cb5640ea-584aae", would run off the 9-in figure)."""
+
+
+def validation_line(names: Sequence[str]) -> str:
+    """The training curve's title's end: on which presses the validation AAE was measured, as `nlips train` prints
+    them ("" when not given): ", validation press sphere", ", validation presses a, b", ", 10 validation presses".
+
+    Parameters
+    ----------
+    names : the validation presses' names
+    """
+    if not names:
+        return ""
+    listed = ", ".join(names)
+    if len(listed) > VALIDATION_NAMES_CHARS:
+        return f", {len(names)} validation press{'es' if len(names) > 1 else ''}"
+    return f", validation press{'es' if len(names) > 1 else ''} {listed}"
 
 
 def best_epoch_title(best: dict) -> str:

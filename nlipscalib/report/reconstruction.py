@@ -119,7 +119,7 @@ def write_reconstruction_figures(
         depth.png then shows the indentation (:func:`depth_view`), else camera z
     name : the press's name, for the summary's title
     """
-    from .figures import ERROR_CMAP, error_scale
+    from .figures import ERROR_CMAP, ERROR_UNIT, error_scale
     from .maps import normal_map_png, scalar_map_png
 
     level = figure_level(level)
@@ -141,7 +141,7 @@ def write_reconstruction_figures(
         if err is None:
             return None, None
         top = error_scale([err])  # ~6 ms at 640x480: once, for error.png and the summary alike
-        return scalar_map_png(folder / ERROR_PNG, err, ERROR_CMAP, "deg", 0.0, top), (err, contact, top)
+        return scalar_map_png(folder / ERROR_PNG, err, ERROR_CMAP, ERROR_UNIT, 0.0, top), (err, contact, top)
 
     residual = _masked(rec.residual[box], shown)
     # NLiPs' fit leaves a residual per solved pixel; NLiPsNet's result (`nlips infer`) has none (all NaN): a grey
@@ -160,7 +160,8 @@ def write_reconstruction_figures(
     if error_path is not None:
         written.append(error_path)
     if level == "full":
-        title = ", ".join(filter(None, [name, METHOD_NAMES.get(rec.report.get("method"), "")]))
+        method = METHOD_NAMES.get(rec.report.get("method"), "")
+        title = ", ".join(filter(None, [name, method, box_words(box, rec.mask.shape)]))
         view = (depth, depth_label, depth_min)
         written.append(_summary(folder / SUMMARY_PNG, rec, box, error, view, residual, title))
     return written
@@ -207,6 +208,22 @@ def solved_box(rec: Reconstruction) -> tuple[slice, slice]:
     return slice(int(rows.min()), int(rows.max()) + 1), slice(int(cols.min()), int(cols.max()) + 1)
 
 
+def box_words(box: tuple[slice, slice], shape: tuple[int, ...]) -> str:
+    """Where a summary's box lies in the image, for its title ("pixels u 47-112, v 27-91", first and last pixel
+    counted from 0, as ``--roi``'s x0 y0), or "" for the whole image: the panels carry no axes, and a
+    ``--roi auto`` crop did not say which part of the capture it shows.
+
+    Parameters
+    ----------
+    box : (rows, cols) slices, :func:`solved_box`
+    shape : (H, W, ...) of the image
+    """
+    rows, cols = (range(*s.indices(n)) for s, n in zip(box, shape[:2]))
+    if len(rows) == shape[0] and len(cols) == shape[1]:
+        return ""
+    return f"pixels u {cols[0]}-{cols[-1]}, v {rows[0]}-{rows[-1]}"
+
+
 def error_map(
     rec: Reconstruction, ground_truth: GroundTruth | None, box: tuple[slice, slice] = (slice(None), slice(None))
 ) -> np.ndarray | None:
@@ -243,7 +260,7 @@ def _summary(
     over ``box`` and error.png's colour bar top (degrees, :func:`.figures.error_scale`), or None without ground
     truth.
     """
-    from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, normals_to_rgb
+    from .figures import NORMALS_KEY, Panel, contact_sheet, error_panel, normals_to_rgb
     from .maps import colour_range
 
     shown = rec.reconstructed[box]
@@ -257,7 +274,7 @@ def _summary(
         panels.append(Panel("RMS residual", residual, "magma", RESIDUAL_UNIT, *colour_range(residual)))
     if error is not None:
         err, contact, top = error  # error.png's colour range, so the two show the same scale
-        panels.append(Panel(error_title(err, contact), err, ERROR_CMAP, "deg", 0.0, top))
+        panels.append(error_panel(error_title(err, contact), err, top))
     return contact_sheet([("", panels)], path, dpi=150, caption=NORMALS_KEY, title=title)
 
 

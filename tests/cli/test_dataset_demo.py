@@ -94,7 +94,12 @@ def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys, caplog):
     assert "spec.toml" in capsys.readouterr().err
 
 
-def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
+def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog, monkeypatch):
+    from nlipscalib.report import figures
+
+    sheets = []
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or save(fig, path, dpi))
     spec = tmp_path / "demo.toml"
     spec.write_text(
         SPEC.replace("azimuth_deg = [0.0, 180.0]", "azimuth_deg = [0.0]").replace("80", "96").replace("60", "72"),
@@ -107,6 +112,9 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     assert said.out == f"{out / 'contact_sheet.png'}\n"
     text = said.err
     assert (out / "contact_sheet.png").stat().st_size > 10_000
+    # the sheet opened alone says what it shows (it had no title)
+    title = "nlips demo on the nlipstac twin (96x72 px): NLiPs around each press's contact vs the true normals"
+    assert title in [t.get_text() for t in sheets[-1].texts]
     assert "press_0001" in text and "sphere" in text
     assert (out / "press_0001" / "nlips" / "result.npz").is_file()
     aae = float(text.split("press_0001")[1].split()[1].rstrip("°"))
@@ -132,3 +140,20 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
         with pytest.raises(SystemExit):
             main([command, "--help"])
         assert "presses of this very spec are kept" in " ".join(capsys.readouterr().out.split())
+
+
+def test_the_demo_sheet_shows_a_few_presses_of_a_large_spec_and_says_so(tmp_path, capsys, monkeypatch):
+    """`nlips demo --spec train50` drew a row per press: a sheet ~11400 px tall. It shows the first SHEET_PRESSES."""
+    from nlipscalib.cli import demo
+    from nlipscalib.report import figures
+
+    sheets = []
+    save = figures.save_png
+    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or save(fig, path, dpi))
+    monkeypatch.setattr(demo, "SHEET_PRESSES", 1)
+    spec = tmp_path / "two.toml"
+    spec.write_text(SPEC, encoding="utf-8")  # two presses
+    assert main(["demo", "--spec", str(spec), "--out", str(tmp_path / "demo"), "--no-solve"]) == 0
+    titles = [t.get_text().replace("\n", " ") for t in sheets[-1].texts]  # a long title is wrapped
+    assert "press_0001" in " ".join(titles) and "press_0002" not in " ".join(titles)
+    assert any(t.endswith("; the first 1 of 2 presses") for t in titles)
