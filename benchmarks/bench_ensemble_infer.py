@@ -33,6 +33,8 @@ def two_nets(a: Predictor, b: Predictor, tricolor: np.ndarray) -> int:
     row, col = np.divmod(index, a.shape[1])
     x[:, 1], x[:, 0] = row, col
     x[:, 2:] = a._colours(tricolor, row, col)  # the prefiltered colours, as Predictor.predict makes them
+    if a.model.input_reference is not None:  # over the reference's, as Predictor.predict gives a ratio model them
+        x[:, 2:] /= a.model.input_reference[row, col]
     mean = a._run(x) + b._run(x)
     normals.reshape(-1, 3)[index] = mean / np.linalg.norm(mean, axis=-1, keepdims=True)
     integrate_on_dome(normals, changed, a.geo)

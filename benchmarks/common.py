@@ -71,10 +71,11 @@ def ms_spread(fn, repeats: int, digits: int = 3) -> str:
     return f"{statistics.median(ms):.{digits}f} [{min(ms):.{digits}f}-{max(ms):.{digits}f}]"
 
 
-def nlips_process(checkout: Path, args: list[str], tag: str) -> tuple[float, float, int]:
+def nlips_process(checkout: Path, args: list[str], tag: str, said: list[str] | None = None) -> tuple[float, float, int]:
     """(wall s, user+sys s, exit status) of one ``python -m nlipscalib ARGS`` process run from ``checkout`` as a
     user's runs: bytecode written (the VM's PYTHONDONTWRITEBYTECODE dropped) under a pycache prefix and a disk cache
-    of its own (``/tmp/bench-TAG-pyc``, ``/tmp/bench-TAG-cache``), from the temp folder, its output discarded."""
+    of its own (``/tmp/bench-TAG-pyc``, ``/tmp/bench-TAG-cache``), from the temp folder, its stdout discarded and its
+    stderr too unless ``said`` is given (then appended to it: a command's own timing line)."""
     import os
     import resource
     import subprocess
@@ -86,16 +87,19 @@ def nlips_process(checkout: Path, args: list[str], tag: str) -> tuple[float, flo
     )
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    rc = subprocess.run(
+    proc = subprocess.run(
         [sys.executable, "-m", "nlipscalib", *args],
         cwd=tempfile.gettempdir(),
         env=env,
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    ).returncode
+        stderr=subprocess.DEVNULL if said is None else subprocess.PIPE,
+        text=True,
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, rc
+    if said is not None:
+        said.append(proc.stderr)
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, proc.returncode
 
 
 def interleaved(sides: list[str], run, pairs: int, what: str) -> dict[str, list[tuple[float, float]]]:

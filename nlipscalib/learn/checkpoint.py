@@ -12,11 +12,12 @@ afresh, saying why.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import hashlib
 import io
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -230,7 +231,13 @@ def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
 
 
 def check_sampling_record(
-    out: Path, progress_path: Path, cfg: TrainConfig, data_key: str, dataset: Path, sampling: object
+    out: Path,
+    progress_path: Path,
+    cfg: TrainConfig,
+    data_key: str,
+    dataset: Path,
+    sampling: object,
+    key_under: Callable[[dict], str] | None = None,
 ) -> None:
     """ConfigError when this run's checkpoint (its progress, or the one published with the model at ``out``) was
     trained on the same samples while the dataset's sampling record (index.json's ``sampling``) said otherwise.
@@ -239,17 +246,31 @@ def check_sampling_record(
     yet the model file takes the record's ``smoothing_px`` (inference filters its inputs with it). `nlips train`
     reused the model of the old record without a word; training again would pair the old samples with the new
     record. Checkpoints from before 2026-12-05 recorded none: nothing to compare.
+
+    ``key_under(record)``: the data key this run's samples had under another sampling record, for trainings whose
+    inputs follow the record (``TrainConfig.colour_input`` "ratio" divides by the reference filtered with its
+    smoothing; the synthetic samples' reference is filtered alike): their checkpoint under the old record has
+    another data key (and another progress file), and the edit went unnoticed. Called only for a checkpoint of
+    these options whose record differs; None: the inputs do not follow the record (``data_key`` under any).
     """
     from ..core.errors import ConfigError
     from .model import read_torch_file
 
-    for path in (progress_path, checkpoint_path(out)):
+    paths = [progress_path, checkpoint_path(out)]
+    if key_under is not None:  # the progress of this run under the old record is named by its old data key
+        runs = out.parent.glob(f"{glob.escape(out.stem)}.*.{CHECKPOINT_FILE}")
+        paths += sorted(p for p in runs if p not in paths)
+    for path in paths:
         try:
             ck = read_torch_file(path, "a training checkpoint")
         except Exception:  # missing or damaged: resume() says so, if it matters
             continue
-        mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
-        if mine and (changed := sampling_changed(ck, sampling)):
+        if not (isinstance(ck, dict) and ck.get("key") == config_key(cfg)):
+            continue
+        if not (changed := sampling_changed(ck, sampling)):
+            continue
+        samples = data_key if key_under is None or ck.get("data_key") == data_key else key_under(ck["sampling"])
+        if ck.get("data_key") == samples:
             raise ConfigError(
                 f"{dataset / 'index.json'}: sampling record changed since {out} was trained on these same samples "
                 f"({changed}); editing index.json does not make the samples again: make the dataset again with "

@@ -8,6 +8,7 @@ together (:mod:`.publish`), so runs into one model path leave the files of one r
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import errno
 import functools
@@ -144,20 +145,26 @@ class TrainConfig:
     the training before the thirty-fifth session (then left out of the checkpoints' and model keys' options, so
     those of earlier trainings stay theirs)."""
 
-    colour_input: str = dataclasses.field(default="linear", metadata={OMIT_AT: "linear"})
-    """What the network's r, g, b inputs are (``learn.model.COLOUR_INPUTS``): ``"linear"``, the filtered linear
-    colours (the paper's), or ``"ratio"``, each over the undeformed reference's colour at the same pixel, filtered
-    alike (``learn.model.input_reference``; the model file records it, and inference divides by the reference it
-    carries). Why: with linear colours the net must learn how the LEDs' light falls off over the image from (u, v)
-    as well as how the colour turns with the normal; the ratio takes the fall-off out, and a tilt changes the inputs
-    alike wherever it lies. On Q2 medium the unseen split went 3.32 / 3.44 -> 3.17 / 3.13 deg vs truth at two training
-    seeds (the cone's and screw's 20-50 deg contact most), the seen split 0.97 / 1.10 -> 0.93 / 0.97
-    (docs/experiments/RESULTS.md, s36-ratio); at full size 3.27 / 3.20 -> 3.05 / 3.03, the seen split 0.92 / 0.86 ->
-    0.84 / 0.85 (the lead's run, the section after it), and as good or better with 5 and 10 calibration presses. Off
-    by default for now: on the tests' few 96x72 presses and short trainings it learns less than the linear colours,
-    and those tests are written for linear inputs. ``"linear"`` is
-    left out of the checkpoints' and model keys' options and of the experiments' records (``core.config.OMIT_AT``), so
-    those of earlier trainings stay theirs."""
+    colour_input: str = dataclasses.field(default="ratio", metadata={OMIT_AT: "linear"})
+    """What the network's r, g, b inputs are (``learn.model.COLOUR_INPUTS``): ``"ratio"`` (the default since the
+    thirty-seventh session), each filtered colour over the undeformed reference's at the same pixel, filtered alike
+    (``learn.model.input_reference``; the model file records it, and inference divides by the reference it carries),
+    or ``"linear"``, the filtered linear colours (the paper's, and every model's before the option). Why: with linear
+    colours the net must learn how the LEDs' light falls off over the image from (u, v) as well as how the colour
+    turns with the normal; the ratio takes the fall-off out, and a tilt changes the inputs alike wherever it lies.
+    Measured (docs/experiments/RESULTS.md, s36-ratio and the lead's sections after it): Q2 at full size, two training
+    seeds, unseen indenters 2.72 / 2.67 -> 2.53 / 2.53 deg vs the labels and 3.27 / 3.20 -> 3.05 / 3.03 vs truth, each
+    unseen indenter better at both seeds, the seen split 0.92 / 0.86 -> 0.84 / 0.85 vs truth; with 5 and 10
+    calibration presses at full size seen 1.74 -> 1.65 and 1.48 -> 1.21 vs truth, unseen no worse; Q2 medium unseen
+    3.32 / 3.44 -> 3.17 / 3.13 vs truth. What learns less from it is only the tests' regime: a couple of 96x72 twin
+    presses and a few epochs (Q2's CI-size check keeps linear colours for that reason, ``experiments.q2.QUICK_NET``).
+
+    Keys: ``"linear"`` is left out of the checkpoints' and model keys' options and of the experiments' records
+    (``core.config.OMIT_AT``; ``learn.checkpoint.jsonable_config``), and a model file without the field is of linear
+    colours: every key, checkpoint and model file of an earlier linear training stays valid and is reused as it was.
+    The ratio is written out, default or not, so the default's keys are those of the runs that asked for
+    ``colour_input = "ratio"`` before it became the default (their models are reused too), and never those of a
+    linear net."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
@@ -334,7 +341,10 @@ def _train(
     data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
-    check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling)
+    key_under = None
+    if cfg.colour_input != "linear" or cfg.synthetic_share > 0:  # inputs made with the record's smoothing too
+        key_under = functools.partial(_data_key_under, dataset, cfg, val_names, exclude)
+    check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling, key_under)
     if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
         if not (why := other_code(done)):
             epochs, best_epoch = done["history"], done["best"]["epoch"]
@@ -366,6 +376,25 @@ def _train(
     _save_trained(model_file, net, dataset, cfg, data, data_key, exclude, history, best)
     progress_file = progress_path if stage else None
     return TrainResult(out, history, best["epoch"], data.train_names, data.val_names, progress_file)
+
+
+def _data_key_under(
+    dataset: CalibrationDataset,
+    cfg: TrainConfig,
+    val_names: Collection[str] | None,
+    exclude: Collection[str],
+    sampling: dict,
+) -> str:
+    """The data key (:func:`.checkpoint.data_key_of`) of this run's samples under the sampling record ``sampling``
+    (a checkpoint's) rather than the dataset's: the same samples, their inputs made with the record's smoothing
+    (a ratio's reference, the synthetic samples'); "" when the record holds no usable smoothing."""
+    try:
+        px, colour = float(sampling.get("smoothing_px", 0.0)), float(sampling.get("smoothing_colour", 0.0))
+        under = copy.copy(dataset)
+        under.smoothing_px, under.smoothing_colour = px, colour
+        return data_key_of(*_training_data(under, cfg, val_names, exclude).arrays())
+    except (AttributeError, TypeError, ValueError, ConfigError):  # a record no prefilter takes: not this run's
+        return ""
 
 
 def _finished(state: dict, cfg: TrainConfig) -> bool:

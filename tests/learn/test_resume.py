@@ -150,13 +150,21 @@ def test_a_checkpoint_of_other_samples_is_not_resumed(built, tmp_path, caplog):
         assert load_model(out).info["val_presses"] == other["val_names"]
 
 
-def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, tmp_path, capsys):
+@pytest.mark.parametrize("colour_input", ["ratio", "linear"])
+def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, tmp_path, capsys, colour_input):
     """The model file carries the dataset's sampling record's smoothing_px (inference filters with it), which the
     samples' key does not hash: after a hand edit of index.json's ``sampling``, `nlips train` reused the model that
     carried the old one (training again would pair the old samples with the new record). Now one line naming the
-    file and what differs; another --out trains with the record as it is."""
+    file and what differs; another --out trains with the record as it is. A model of colour ratios divides by the
+    reference filtered with the record's smoothing, so its inputs' key follows the record: the edit went unnoticed
+    and it trained again on the old samples over the new record's reference, finished or interrupted alike."""
+    import hashlib
+
+    import torch
+
     out = tmp_path / "m.pt"
     args = ["train", str(built), "--out", str(out), "--hidden", "8", "--epochs", "2", "--no-onnx", "--no-progress"]
+    args += ["--colour-input", colour_input]
     assert main(args) == 0
     assert main(args) == 0 and "reused" in capsys.readouterr().err
     index = json.loads((built / "index.json").read_text(encoding="utf-8"))
@@ -172,9 +180,20 @@ def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, 
     assert len(err.splitlines()) == 1 and str(built / "index.json") in err, err
     assert f"smoothing_px {was}, now {was + 1.0}" in err and "--out ANOTHER.pt" in err, err
     assert out.read_bytes() == before
+    # killed before it finished (its progress file left, no model): refused alike
+    published = checkpoint_path(out)
+    ck = torch.load(published, weights_only=False)
+    run = hashlib.sha1(f"{ck['key']}:{ck['data_key']}".encode()).hexdigest()[:12]  # progress_checkpoint_path's name
+    published.rename(out.with_name(f"m.{run}.checkpoint.pt"))
+    out.unlink()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"smoothing_px {was}, now {was + 1.0}" in err, err
+    assert not out.exists()
     other = tmp_path / "other.pt"
     assert main([*args[:3], str(other), *args[4:]]) == 0
     assert load_model(other).smoothing_px == was + 1.0
+    assert load_model(other).colour_input == colour_input
 
 
 def test_a_model_another_training_made_is_replaced_with_a_warning_a_resumed_one_without(built, tmp_path, caplog):
