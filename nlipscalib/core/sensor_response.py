@@ -145,6 +145,13 @@ DECLARE_TONE_CURVE = (
 )
 """The second cure the tone-curve messages name (the linearity warning, the dark-frame refusal): a webcam that
 cannot switch gamma off is declared, not refused (docs/formats.md, "Cameras")."""
+TONE_CURVE_LIFTS_DARK = (
+    "A tone curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
+    "offset and noise above the black level"
+)
+"""Why a camera's undeclared tone curve shows as a dark frame above the black level: said where the dark-frame
+refusals of the solve (``solver.exposure.dark_frame_fault``) and of the capture
+(``device.exposure.check_exposure``, at the reference) name the tone curve as the cause."""
 
 
 LEAST_BIT_DEPTH = 8

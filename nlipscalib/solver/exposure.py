@@ -13,7 +13,7 @@ from ..core import tolerances
 from ..core.capture import Press
 from ..core.dark_pedestal import camera_dn, even_dark_offset
 from ..core.repeated_frames import ExpectedLight, model_light
-from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE, TONE_CURVE_LIFTS_DARK
 
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
 """What to do about saturated LED images."""
@@ -215,8 +215,7 @@ def _tone_curve_cause(press: Press) -> str:
         return ""
     return (
         f", and the LED images are not linear in the light (each pixel's value grows as the LED model's light to "
-        f"the power {slope:.2f}; a linear capture: about 1): gamma-encoded (sRGB) frames? A tone "
-        f"curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
-        f"offset and noise above the black level. Capture raw, linear frames with the camera's gamma off "
+        f"the power {slope:.2f}; a linear capture: about 1): gamma-encoded (sRGB) frames? {TONE_CURVE_LIFTS_DARK}. "
+        f"Capture raw, linear frames with the camera's gamma off "
         f"({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}"
     )

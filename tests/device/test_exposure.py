@@ -148,3 +148,46 @@ def test_a_reference_whose_dark_frame_sits_evenly_above_the_black_level_is_refus
     lamp = _frames()
     lamp["dark"] = np.linspace(0, 2 * DARK, W, dtype=np.uint16)[None, :, None] * np.ones((H, 1, 3), np.uint16)
     assert check_exposure(lamp, undeclared, tmp_path / "reference", reference=True) == []
+
+
+def test_a_pedestal_reference_whose_led_frames_are_not_linear_is_refused_naming_the_tone_curve(tmp_path):
+    """A gamma camera's curve lifts its small dark offset evenly above the black level: the refusal named
+    `--black-level` and the solve then called the frames not linear (s37). With the tone-curve check given
+    (``response_slope``, the solve's, wired by the CLI) the refusal names the curve first: undeclared, the ways to
+    linear frames; declared, that the curve is another. Linear frames (slope 1) keep the black level's refusal, and
+    the check is not asked of a dark frame at the black level."""
+    undeclared = SensorResponse(bit_depth=12, black_level=0.0, white_level=65520.0)
+    asked = []
+
+    def slope(value):
+        def response_slope(leds, dark):
+            asked.append((leds.shape, dark.shape))
+            return value
+
+        return response_slope
+
+    with pytest.raises(CaptureError) as refused:
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(0.48))
+    message = str(refused.value)
+    assert asked == [((L, H, W, 3), (H, W, 3))]
+    assert message.startswith(
+        f"{tmp_path / 'reference'}: the LED frames are not linear in the light: each pixel's value grows as the LED "
+        "model's light to the power 0.48 (median; a linear capture: about 1), as in gamma-encoded (sRGB) frames; and "
+        "dark.png sits evenly above the black level 0 (--black-level), its median of the pixels 62.5 in the camera's "
+        "12-bit values (1.5 % of full scale). A tone curve is steepest at black"
+    )
+    assert "--camera-response srgb" in message and "`--black-level" not in message
+    assert message.endswith("The reference was not written (the session's settings are fixed only once it is)")
+
+    srgb = SensorResponse(bit_depth=12, black_level=0.0, white_level=65520.0, camera_response="srgb")
+    with pytest.raises(CaptureError, match=r"declared tone curve undone \(--camera-response: srgb\).*is another"):
+        # 5000 of 65520 is 0.7 % of full scale in the light (sRGB undone): a dark frame of the pedestal's kind
+        check_exposure(_frames(dark=5000), srgb, tmp_path / "reference", reference=True, response_slope=slope(0.6))
+
+    with pytest.raises(CaptureError, match=r"capture again with it declared \(`--black-level 62\.5`\)"):
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(1.0))
+    with pytest.raises(CaptureError, match=r"`--black-level 62\.5`"):  # not told: the black level, as before
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(None))
+    asked.clear()
+    assert check_exposure(_frames(), RESPONSE, tmp_path / "reference", reference=True, response_slope=slope(0.5)) == []
+    assert asked == []
