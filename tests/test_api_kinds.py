@@ -6,7 +6,8 @@ Why: s36-apileft checked the first sections' entry points (load_press, save_reco
 Predictor, train, render_press); the rest of the page (solve_folder, solve_presses, calibrate_leds, build_dataset,
 evaluate and the metrics, load_tricolor, check_sensor, mismatch_warning, to_reconstruction, MismatchWatch,
 open_source, CameraSettings, to_stored, lights_out_on_exit, start_board, SaveSink, stream, load_scene,
-IndenterConfig, tricolor_colors, capture_led_diameter, read_led_file, Press.linear) still failed deep inside
+IndenterConfig, tricolor_colors, capture_led_diameter, read_led_file, Press.linear, VirtualBoard,
+AdalightController.open) still failed deep inside
 ("'int' object is not iterable", "'str' object has no attribute 'read'", "could not convert string to float"), and
 solve_presses("out/press") went through the path's characters as press folders (s37 capcheck's walk).
 """
@@ -102,10 +103,11 @@ def _calls(s):
 
 
 def _twin_and_device_calls(s):
+    from nlipscalib.device.adalight import AdalightController
     from nlipscalib.device.camera import CameraSettings, open_source, to_stored
     from nlipscalib.device.lights_out import lights_out_on_exit
     from nlipscalib.device.live import SaveSink, stream
-    from nlipscalib.device.virtual_board import start_board
+    from nlipscalib.device.virtual_board import VirtualBoard, start_board
     from nlipscalib.sim.indenters import IndenterConfig
     from nlipscalib.sim.scene import load_scene
 
@@ -119,6 +121,9 @@ def _twin_and_device_calls(s):
         "to_stored": ("frame must be", lambda: to_stored([[1, 2, 3]])),
         "lights_out_on_exit": ("controller must be", lambda: lights_out_on_exit("board").__enter__()),
         "start_board": ("url must be", lambda: start_board(3, 12)),
+        "VirtualBoard": ("n_leds must be", lambda: VirtualBoard("twelve")),
+        "VirtualBoard baudrate": ("baudrate must be", lambda: VirtualBoard(12, baudrate="fast")),
+        "AdalightController.open": ("n_leds must be", lambda: AdalightController.open("loop://", "12")),
         "SaveSink": ("folder must be", lambda: SaveSink(3)),
         "stream": ("source must be", lambda: stream("camera 0", lambda frame: None, [])),
         "stream sinks": ("sinks must be", lambda: stream(_Reader(), lambda frame: None, "frames/")),
@@ -175,6 +180,9 @@ TWIN_AND_DEVICE = [
     "to_stored",
     "lights_out_on_exit",
     "start_board",
+    "VirtualBoard",
+    "VirtualBoard baudrate",
+    "AdalightController.open",
     "SaveSink",
     "stream",
     "stream sinks",

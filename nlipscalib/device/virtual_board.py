@@ -158,6 +158,10 @@ class VirtualBoard:
         board_id: str | None = None,
         baudrate: int | None = None,
     ):
+        from ..core.errors import check_kind
+
+        check_kind(n_leds, (int, np.integer), "n_leds", "the board's whole number of LEDs")
+        check_kind(baudrate, (int, type(None)), "baudrate", "a line rate in baud (115200), or None: any")
         self.n_leds = int(n_leds)
         self.firmware = firmware
         self.protocol = int(protocol)
