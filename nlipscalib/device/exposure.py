@@ -33,6 +33,7 @@ from ..core.sensor_response import (
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
     DARK_FRAME_OFFSET,
+    DECLARED_CURVE_SLOPE,
     EXPOSURE_LIGHT_FRACTION,
     EXPOSURE_LIT_SHARE,
     EXPOSURE_SATURATED_SHARE,
@@ -79,15 +80,16 @@ def check_exposure(
         The image model's light on the undeformed gel (:func:`nlipscalib.core.repeated_frames.model_light`): rows
         that look dark in every LED frame are judged again against it (a wide view's dome base is lit less).
     response_slope : ResponseSlope, optional
-        The tone-curve check of a ``reference`` whose dark frame sits evenly above the black level: frames not
-        linear in the light are refused naming the tone curve, not the black level (:func:`_refuse_pedestal`);
-        None: that dark frame is named a black level (pedestal) unjudged.
+        The tone-curve check of a ``reference`` (asked once, ~0.3 s at 640x480): LED frames not linear in the light
+        are warned about first (:func:`_tone_curve_lines`), and with a dark frame evenly above the black level
+        refused naming the tone curve, not the black level (:func:`_refuse_pedestal`); None: not judged.
 
     Returns
     -------
     list of str
-        At most six lines: the black LED frames, the over-exposed frames, the repeated LED frames, the partly
-        lagged ones, rows dark in every LED frame, the JPEG-compressed LED frames.
+        At most seven lines: a ``reference``'s tone curve (:func:`_tone_curve_lines`), the black LED frames, the
+        over-exposed frames, the repeated LED frames, the partly lagged ones, rows dark in every LED frame, the
+        JPEG-compressed LED frames.
 
     Raises
     ------
@@ -110,11 +112,15 @@ def check_exposure(
         for name in names
         if clipped[f"{name}.png"] < EXPOSURE_UNUSABLE_SHARE and not _lit(frames[name], dark, response, gel)
     ]
+    lines = []
     if reference:
         _refuse_unusable(folder, names, black, clipped, where)
-        leds = np.stack([frames[name] for name in names]) if response_slope is not None else None
-        _refuse_pedestal(folder, frames["dark"], stored_dark, response, gel, where, leds, response_slope)
-    lines = [_black_line(folder, names, black)] if black else []
+        slope = None
+        if response_slope is not None:  # the LED frames in the light, as the dark frame
+            slope = response_slope(np.stack([frames[name] for name in names]), frames["dark"])
+        _refuse_pedestal(folder, frames["dark"], stored_dark, response, gel, where, slope)
+        lines += _tone_curve_lines(folder, response, slope)  # first: every other reading is of the wrong light
+    lines += [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
     lines += [over] if over else []
     lines += _repeated_lines(frames, names, response, folder, gel, outlined, expected)
@@ -253,8 +259,7 @@ def _refuse_pedestal(
     response: SensorResponse,
     gel: np.ndarray,
     where: str,
-    leds: np.ndarray | None = None,
-    response_slope: ResponseSlope | None = None,
+    slope: float | None = None,
 ) -> None:
     """CaptureError when the reference's dark frame sits evenly above the declared black level by more than
     :data:`~nlipscalib.core.tolerances.DARK_FRAME_OFFSET` of full scale: the camera's own black level (pedestal),
@@ -265,14 +270,14 @@ def _refuse_pedestal(
     so it is refused before any press, as a black one is. ``dark`` is in the light (a declared tone curve undone),
     as the solve judges it; ``stored_dark`` as the camera encoded it, the values ``--black-level`` takes.
 
-    A tone curve is told first: with ``response_slope`` and the ``leds`` frames (in the light, as ``dark``) growing
-    with the light to a power below :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (the solve's limit),
-    the refusal names the camera's tone curve (:func:`_tone_curve_refusal`). Why: a gamma-2.2 webcam whose dark
-    frame held 0.3 % of full scale of light evenly was told `--black-level 20` (of 255: the curve lifted it 26 times,
-    to 7.8 %); captured so, `nlips solve` called its LED images "not linear in the light" (power 0.53) and refused the
-    press as another sensor's (s37 capcheck, the /tmp/keep reference and sphere1 through a gamma-2.2 encoding). A
-    camera's own black level, subtracted, leaves linear frames (power 1.00): only the slope tells the two apart.
-    The check (~0.3 s at 640x480) runs only on a dark frame the black level would be named for."""
+    A tone curve is told first: with the LED frames (in the light, as ``dark``) growing with the light to the power
+    ``slope`` (:data:`ResponseSlope`; None: not told) below :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE`
+    (the solve's limit), the refusal names the camera's tone curve (:func:`_tone_curve_refusal`). Why: a gamma-2.2
+    webcam whose dark frame held 0.3 % of full scale of light evenly was told `--black-level 20` (of 255: the curve
+    lifted it 26 times, to 7.8 %); captured so, `nlips solve` called its LED images "not linear in the light" (power
+    0.53) and refused the press as another sensor's (s37 capcheck, the /tmp/keep reference and sphere1 through a
+    gamma-2.2 encoding). A camera's own black level, subtracted, leaves linear frames (power 1.00): only the slope
+    tells the two apart."""
     samples = dark[gel]
     median = float(np.median(samples))
     black, white = response.black_level, response.white_level
@@ -281,7 +286,6 @@ def _refuse_pedestal(
         return
     bits = response.bit_depth
     pedestal = camera_dn(float(np.median(stored_dark[gel])), bits)
-    slope = None if response_slope is None or leds is None else response_slope(leds, dark)
     if slope is not None and slope < LINEAR_RESPONSE_SLOPE:
         lifted = (
             f"dark.png sits evenly above the black level {camera_dn(black, bits):g} (--black-level), its median "
@@ -303,6 +307,47 @@ def _tone_curve_refusal(folder: Path, response: SensorResponse, slope: float, li
     """The reference's refusal when its LED frames grow with the light to the power ``slope`` (below
     :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE`) and its dark frame is ``lifted`` above the black
     level: the camera's tone curve, undeclared or declared wrongly (``response.camera_response``), named first."""
+    head, cure = _tone_curve_fault(folder, response, slope)
+    return (
+        f"{head}; and {lifted}. {TONE_CURVE_LIFTS_DARK}: a --black-level would not make the frames linear (`nlips "
+        f"solve` would call them not linear, its normals wrong by degrees). {cure}. The reference was not written (the "
+        "session's settings are fixed only once it is)"
+    )
+
+
+def _tone_curve_lines(folder: Path, response: SensorResponse, slope: float | None) -> list[str]:
+    """The warning of a written reference whose LED frames grow with the light to the power ``slope``: below
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` the camera's tone curve (undeclared, or declared and
+    another), above :data:`~nlipscalib.core.tolerances.DECLARED_CURVE_SLOPE` with a curve declared linear frames
+    (undoing a curve they never had); [] otherwise or for None (not told).
+
+    Why: a gamma-encoding camera (its dark frame at the black level) was captured whole without a word, every press
+    solved later with "not linear in the light" and its normals degrees off; the session's tone curve
+    (``--camera-response``) is fixed by its reference, so the session has to be captured again, in a new folder.
+    A warning, not a refusal: the slope is judged against the design's model of the sensor, which a real sensor
+    departs from (the solve warns alike)."""
+    again = (
+        "; the session's normals would be wrong by degrees: stop (Ctrl-C) and capture it again into a new folder "
+        "(this one's settings are fixed by its reference)"
+    )
+    if slope is not None and slope < LINEAR_RESPONSE_SLOPE:
+        head, cure = _tone_curve_fault(folder, response, slope)
+        return [f"{head}{again}. {cure}"]
+    declared = response.camera_response
+    if slope is not None and declared != "linear" and slope > DECLARED_CURVE_SLOPE:
+        return [
+            f"{folder}: --camera-response declares the camera's {declared} tone curve, but with it undone each "
+            f"pixel's value grows as the LED model's light to the power {slope:.2f} (median; a linear capture: about "
+            f"1): the frames were linear already?{again}, without --camera-response (or with the camera's measured "
+            "curve, `nlips calibrate-camera-response` with the camera set as it captures)"
+        ]
+    return []
+
+
+def _tone_curve_fault(folder: Path, response: SensorResponse, slope: float) -> tuple[str, str]:
+    """What the tone-curve messages say of LED frames growing with the light to the power ``slope``: the fault
+    (``folder``: ...) and its cure, for an undeclared curve or a declared one (``response.camera_response``) that is
+    not the camera's."""
     declared = response.camera_response
     grows = (
         f"each pixel's value grows as the LED model's light to the power {slope:.2f} (median; a linear capture: "
@@ -321,8 +366,4 @@ def _tone_curve_refusal(folder: Path, response: SensorResponse, slope: float, li
             f"captures) and capture with `--camera-response FILE`, or capture raw, linear frames with the camera's "
             f"gamma off ({CAMERA_SETTINGS_GUIDE})"
         )
-    return (
-        f"{head}; and {lifted}. {TONE_CURVE_LIFTS_DARK}: a --black-level would not make the frames linear (`nlips "
-        f"solve` would call them not linear, its normals wrong by degrees). {cure}. The reference was not written (the "
-        "session's settings are fixed only once it is)"
-    )
+    return head, cure

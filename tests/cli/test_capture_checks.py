@@ -32,14 +32,14 @@ def undeformed(tmp_path_factory):
     return load_press(render_press(scene, None, tmp_path_factory.mktemp("twin") / "reference", seed=5))
 
 
-def recorded(press, folder, encode) -> None:
+def recorded(press, folder, encode, dark_light: float = DARK_LIGHT) -> None:
     """``press``'s sequence (tri-colour, dark, LED 1..12, tri-colour) as an 8-bit camera's recorded frames, each
-    frame's light (fraction of full scale, plus :data:`DARK_LIGHT`) through ``encode`` to [0, 1]; and the
-    camera's calibration beside them (``folder``.json)."""
+    frame's light (fraction of full scale, plus ``dark_light``) through ``encode`` to [0, 1]; and the camera's
+    calibration beside them (``folder``.json)."""
     folder.mkdir()
     black, white = press.response.black_level, press.response.white_level
     for k, image in enumerate([press.tricolor, press.dark, *press.led_images, press.tricolor]):
-        light = np.clip((image.astype(np.float64) - black) / (white - black) + DARK_LIGHT, 0, 1)
+        light = np.clip((image.astype(np.float64) - black) / (white - black) + dark_light, 0, 1)
         frame = np.rint(255 * np.clip(encode(light), 0, 1)).astype(np.uint8)
         cv2.imwrite(str(folder / f"{k:04d}.png"), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     folder.with_suffix(".json").write_text(json.dumps({"camera": press.camera.to_dict()}), encoding="utf-8")
@@ -74,3 +74,24 @@ def test_a_gamma_camera_whose_dark_frame_it_lifted_is_told_its_tone_curve_not_a_
     (line,) = errors_only(capsys.readouterr().err)
     assert "not a dark frame of the black level 0" in line and "(`--black-level 20`)" in line
     assert "not linear" not in line
+
+
+def test_a_gamma_camera_whose_dark_frame_is_at_the_black_level_is_warned_about_at_its_reference(
+    tmp_path, caplog, undeformed
+):
+    """The same gamma-2.2 webcam without a dark offset was captured without a word (s37): the reference is written
+    and warned about first, the session to be captured again; the linear camera's is not."""
+    import logging
+
+    recorded(undeformed, tmp_path / "gamma", lambda light: light ** (1 / 2.2), dark_light=0.0)
+    with caplog.at_level(logging.WARNING):
+        assert capture(tmp_path / "gamma", tmp_path / "s1") == 0
+    said = [r.getMessage() for r in caplog.records if "not linear in the light" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f"{tmp_path / 's1' / 'reference'}: the LED frames are"), said
+    assert "power 0.5" in said[0] and "capture it again into a new folder" in said[0]
+
+    caplog.clear()
+    recorded(undeformed, tmp_path / "linear", lambda light: light, dark_light=0.0)
+    with caplog.at_level(logging.WARNING):
+        assert capture(tmp_path / "linear", tmp_path / "s2") == 0
+    assert not [r for r in caplog.records if "not linear" in r.getMessage()]
