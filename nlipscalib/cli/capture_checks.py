@@ -22,9 +22,8 @@ def response_slope_of(rig: Rig) -> Callable[[np.ndarray, np.ndarray], float | No
     follow no power law of the model's light (:data:`~nlipscalib.core.tolerances.RESPONSE_POWER_LAW_FIT`).
 
     The frames it is given are in the light (a declared tone curve undone by the exposure check), so the press it
-    judges declares none. The solver is imported at the first call: the session asks only of a reference whose dark
-    frame sits evenly above the black level (``device.exposure``), and a capture of a well-set camera never loads
-    it."""
+    judges declares none. The solver is imported at the first call, the session's reference (once per session:
+    +0.3 s of CPU at 640x480, benchmarks/RESULTS.md, s37-capcheck); a press is not judged."""
 
     def slope(led_frames: np.ndarray, dark: np.ndarray) -> float | None:
         from ..core.capture import Press

@@ -689,7 +689,8 @@ the LED frames follow a power law of the LED model's light: each pixel's log-log
 at least this, in median over the gel. The one-bounce twin's undeformed nlipstac (160x120) as 8-bit frames: linear,
 gamma 2.2 and linear plus a 20-of-255 black level 0.998; flat grey frames of a camera of another scene (the device
 tests' recorded frames) 0.22, slope 0.06, which named a tone curve where a black level was the fault (s37). Below it,
-the capture names the black level as before; the solve asks no fit (its warning as it was)."""
+the capture says nothing of a tone curve (a dark frame above the black level named as one, as before); the solve
+asks no fit (its warning as it was)."""
 DECLARED_CURVE_SLOPE = 1.2
 """A capture that declares a tone curve (meta.json ``sensor.camera_response`` "srgb") whose LED images, the curve
 undone, grow as the LED model's light to a power above this (:data:`LINEAR_RESPONSE_SLOPE`'s slope) is taken as
