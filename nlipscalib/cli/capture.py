@@ -29,6 +29,7 @@ from ..core.errors import DeviceError
 from ..core.shell_words import shell_word
 from ..progress import bars_enabled, print_result, say
 from .camera_response import TONE_CURVE_CHOICES
+from .capture_checks import response_slope_of
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
@@ -360,6 +361,7 @@ def _run_emulated(args: argparse.Namespace):
         echo=say,  # the scripted operator's instructions: a session's info lines, on stderr (stdout: the folder)
     ) as sensor:
         sensor.rig.provenance.update(response_provenance(args))
+        sensor.rig.response_slope = response_slope_of(sensor.rig)
         cfg = _session_config(args, sensor.tricolor_level)
         check_resumable(sensor.rig, args.out, cfg)  # before the renders, which a refusal would throw away
         sensor.prerender(progress=bars_enabled())
@@ -433,6 +435,7 @@ def _run_device(args: argparse.Namespace):
             if args.camera_calibration
             else f"the camera of the design {args.design or DEFAULT_DESIGN} (no --camera-calibration)",
         )
+        rig.response_slope = response_slope_of(rig)  # the reference's tone-curve check: the solve's
         interactive = not args.yes and sys.stdin.isatty()
         operator = Operator(interactive=interactive, echo=_tell_operator if interactive else say)
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())

@@ -177,6 +177,7 @@ class Press:
         -------
         (..., H, W, 3) float32, linear, 0 = dark frame, 1 = full scale
         """
+        check_kind(image, (np.ndarray, list, tuple), "image", "an (..., H, W, 3) array of stored values")
         return linearise(image, self.dark[tuple(window)], self.response.black_level, self.response.white_level)
 
     @functools.cached_property

@@ -6,6 +6,7 @@ the CLI turns them into one readable line instead of a traceback.
 
 from __future__ import annotations
 
+import numbers
 import os
 import reprlib
 from types import ModuleType
@@ -64,6 +65,29 @@ def require(module: str, extra: str, purpose: str) -> ModuleType:
 
 PATH = (str, os.PathLike)
 """What a path argument may be (``str`` or ``pathlib.Path``), for :func:`check_kind`."""
+NUMBER = numbers.Real
+"""What a number argument may be (int, float, NumPy's scalars; a bool never), for :func:`check_kind`."""
+
+
+def check_paths(
+    values: object, name: str, what: str, kinds: type | tuple[type, ...] = PATH, each: str = "a path (str or Path)"
+) -> list:
+    """``values`` as a list, ShapeError naming ``name`` unless it is an iterable (a list, a tuple, a generator) of
+    ``kinds`` (default paths, str or Path; ``each`` says what one must be): one path alone, whose characters would be
+    taken for paths, is refused with ``what`` and how to give one (``[path]``).
+
+    Why: ``solve_presses("out/press")`` went through the string's characters as press folders; ``solve_presses(3)``
+    and ``build_dataset([3], ...)`` failed with Python's "'int' object is not iterable" or "expected str, bytes or
+    os.PathLike object" from inside (s37 capcheck)."""
+    if isinstance(values, PATH):
+        raise ShapeError(f"{name} must be {what}, got one path {os.fspath(values)!r}: give [{os.fspath(values)!r}]")
+    try:
+        listed = list(values)
+    except TypeError:
+        raise ShapeError(f"{name} must be {what}, got {type(values).__name__} {reprlib.repr(values)}") from None
+    for i, value in enumerate(listed):
+        check_kind(value, kinds, f"{name}[{i}]", each)
+    return listed
 
 
 def check_kind(value: object, kinds: type | tuple[type, ...], name: str, what: str) -> None:

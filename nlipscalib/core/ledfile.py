@@ -87,6 +87,7 @@ def _other_format(name: str) -> str:
 
 def read_led_file(path: str | Path) -> LedFile:
     """Read an LED file from ``nlips calibrate-leds`` (CaptureError naming it when missing or malformed)."""
+    check_kind(path, PATH, "path", "the LED file's path (str or Path)")
     path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .config import is_number
-from .errors import ConfigError, ShapeError
+from .errors import ConfigError, ShapeError, check_kind
 from .metrics import angle_deg
 from .tolerances import MAX_LED_DISTANCE_MM, MAX_LED_INTENSITY, MAX_LED_MU, NORMAL_EPS
 
@@ -104,6 +104,7 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
     -------
     groups : (n_leds,) int
     """
+    check_kind(n_leds, (int, np.integer), "n_leds", "a whole number of LEDs (board.n_leds)")
     if n_leds < 3:
         raise ConfigError(f"a tri-colour image needs at least 3 LEDs, got {n_leds}")
     return (np.arange(n_leds) * 3) // n_leds

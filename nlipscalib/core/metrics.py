@@ -12,14 +12,22 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import CaptureError, ShapeError
+from .errors import CaptureError, ShapeError, check_kind
 
 if TYPE_CHECKING:  # names in hints only: importing them here would make an import cycle
     from .reconstruction import Reconstruction
     from .surface_files import GroundTruth
 
 
+ARRAY = (np.ndarray, list, tuple)
+"""What a map argument of the metrics may be: an array, or nested lists NumPy makes one of."""
+
+
 def _check(est: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, name: str, last: int | None):
+    named = ("normals", "gt_normals") if last else ("depth", "gt_depth")  # the metrics' own argument names
+    for value, what in ((est, named[0]), (gt, named[1]), (mask, "mask")):
+        # "could not convert string to float: 'a'" from NumPy named neither the function nor the argument
+        check_kind(value, (*ARRAY, type(None)) if what == "mask" else ARRAY, f"{name}: {what}", "an array")
     est, gt = np.asarray(est, dtype=np.float64), np.asarray(gt, dtype=np.float64)
     if est.shape != gt.shape or (last is not None and est.shape[-1] != last):
         raise ShapeError(
@@ -160,6 +168,16 @@ def evaluate(result: Reconstruction, ground_truth: GroundTruth, mask: np.ndarray
         raise CaptureError(
             "evaluate: no ground truth (None): a real capture carries none (press.ground_truth is None); only twin "
             "presses (nlips render, nlips dataset) are scored"
+        )
+    if not all(hasattr(result, field) for field in ("normals", "depth", "reconstructed")):
+        raise ShapeError(
+            "evaluate: result must be a Reconstruction (a solve's result, load_reconstruction, "
+            f"learn.infer.to_reconstruction), got {type(result).__name__}"
+        )
+    if not all(hasattr(ground_truth, field) for field in ("valid", "contact")):  # a GroundTruth, or like one
+        raise ShapeError(
+            "evaluate: ground_truth must be a GroundTruth (press.ground_truth of a twin press), got "
+            f"{type(ground_truth).__name__}"
         )
     shape = ground_truth.valid.shape
     for name, array in (("result", result.reconstructed), ("mask", mask)):

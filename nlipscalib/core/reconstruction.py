@@ -299,6 +299,7 @@ def save_reconstruction(
 
     check_kind(rec, Reconstruction, "rec", "a Reconstruction (a solve's result, load_reconstruction)")
     check_kind(folder, PATH, "folder", "the output folder's path (str or Path)")
+    check_kind(overwrite, bool, "overwrite", "True or False")  # "no" would have been taken as True
     folder = Path(folder)
     # "." has no name to write beside; any other folder stays as given, so that an error names it as the user did
     # (an absolute path named `--out bad/../ro/inf` "/home/.../bad/../ro/inf")

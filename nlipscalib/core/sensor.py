@@ -19,7 +19,7 @@ import numpy as np
 
 from .camera import Camera
 from .config import OMIT_AT_DEFAULT, check_count, check_range, from_mapping, read_config_file
-from .errors import ConfigError
+from .errors import ConfigError, check_kind
 from .leds import Led
 
 MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
@@ -309,6 +309,7 @@ def capture_led_diameter(meta: dict, where: str = "meta.json") -> tuple[float, s
     """
     from .config import is_finite_number
 
+    check_kind(meta, dict, "meta", "a press folder's meta.json as a dict (press.meta, core.press_meta.read_meta)")
     provenance = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
     for key, source in (("design", meta.get("design")), ("provenance.scene", provenance.get("scene"))):
         leds = source.get("leds") if isinstance(source, dict) else None

@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import CaptureError
+from .errors import PATH, CaptureError, check_kind
 from .leds import Leds, led_geometry_mismatch, tricolor_groups
 from .response_curve import curve_json
 from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL, SAME_SURFACE_MM
@@ -249,6 +249,9 @@ def leds_file_mismatch(recorded: dict, file_leds: Leds, actual: dict) -> str | N
 
 def check_sensor(expected: dict, actual: dict, where: str | Path) -> None:
     """Raise CaptureError naming ``where`` when ``actual`` is another sensor than ``expected``."""
+    check_kind(expected, dict, "expected", "a sensor description (predictor.model.sensor)")
+    check_kind(actual, dict, "actual", "a sensor description (load_tricolor(folder)[1], describe_sensor(...))")
+    check_kind(where, PATH, "where", "what the sensor is of, for the message: a press folder's path or a name")
     why = sensor_mismatch(expected, actual)
     if why:
         raise CaptureError(f"{where}: captured with another sensor than the model was calibrated for ({why})")

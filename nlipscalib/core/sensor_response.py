@@ -119,6 +119,35 @@ def undo_tone_curve(images: np.ndarray, table: np.ndarray | None) -> np.ndarray:
     return images
 
 
+def redo_tone_curve(values: np.ndarray, table: np.ndarray | None) -> np.ndarray:
+    """Stored values linear in the light back to the values the camera encoded them as, :func:`undo_tone_curve`'s
+    inverse: for each, the middle of the stored values that ``table`` (:func:`tone_curve_table`, monotonic) undoes
+    to it (where the curve is flatter than the 16-bit steps, several: the sRGB toe's 13); ``values`` themselves when
+    ``table`` is None (a linear camera).
+
+    Parameters
+    ----------
+    values : (..., 3) uint16 or float, stored values linear in the light (a column per channel, R, G, B)
+    table : (65536,) or (65536, 3) uint16 from :func:`tone_curve_table`, or None
+
+    Returns
+    -------
+    (..., 3) float64, stored values as the camera encoded them (``values`` for None)
+
+    Why: a dark frame's level is told to a lab as the ``--black-level`` that ``nlips capture`` takes, the camera's
+    own value; a press declaring an sRGB curve was told its linear one (2.047 of 255 for the 22 the camera gave,
+    s37 capcheck)."""
+    if table is None:
+        return values
+
+    def middle(column: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+        return (np.searchsorted(column, wanted, "left") + np.searchsorted(column, wanted, "right") - 1) / 2
+
+    if table.ndim == 1:
+        return middle(table, values)
+    return np.stack([middle(table[:, c], values[..., c]) for c in range(3)], axis=-1)
+
+
 def eight_bit_table(table: np.ndarray | None) -> np.ndarray:
     """The stored value of each 8-bit sample, with the camera's tone curve undone: (256,) uint16, ``table`` (from
     :func:`tone_curve_table`) at ``DN << 8`` (an 8-bit frame's stored values, ``device.camera.to_stored``), or
@@ -145,6 +174,13 @@ DECLARE_TONE_CURVE = (
 )
 """The second cure the tone-curve messages name (the linearity warning, the dark-frame refusal): a webcam that
 cannot switch gamma off is declared, not refused (docs/formats.md, "Cameras")."""
+TONE_CURVE_LIFTS_DARK = (
+    "A tone curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
+    "offset and noise above the black level"
+)
+"""Why a camera's undeclared tone curve shows as a dark frame above the black level: said where the dark-frame
+refusals of the solve (``solver.exposure.dark_frame_fault``) and of the capture
+(``device.exposure.check_exposure``, at the reference) name the tone curve as the cause."""
 
 
 LEAST_BIT_DEPTH = 8

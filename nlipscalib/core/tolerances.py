@@ -683,6 +683,14 @@ undeformed and pressed, two seeds: linear 0.99-1.02 on the default dome (the /tm
 capsule, the fingertip, the flat and the oblate designs; through the sRGB curve (8 bits) 0.46-0.49. Halfway between,
 in ratio. Against the direct light alone (before s28-capslin, limit 0.55) a linear capture's slope was its direct
 share: the default dome 0.75, the fingertip 0.56, the capsule 0.28-0.34 (every capsule solve warned)."""
+RESPONSE_POWER_LAW_FIT = 0.9
+"""``nlips capture`` names a reference's tone curve (:data:`LINEAR_RESPONSE_SLOPE`'s slope below its limit) only where
+the LED frames follow a power law of the LED model's light: each pixel's log-log fit across the LEDs with an R^2 of
+at least this, in median over the gel. The one-bounce twin's undeformed nlipstac (160x120) as 8-bit frames: linear,
+gamma 2.2 and linear plus a 20-of-255 black level 0.998; flat grey frames of a camera of another scene (the device
+tests' recorded frames) 0.22, slope 0.06, which named a tone curve where a black level was the fault (s37). Below it,
+the capture says nothing of a tone curve (a dark frame above the black level named as one, as before); the solve
+asks no fit (its warning as it was)."""
 DECLARED_CURVE_SLOPE = 1.2
 """A capture that declares a tone curve (meta.json ``sensor.camera_response`` "srgb") whose LED images, the curve
 undone, grow as the LED model's light to a power above this (:data:`LINEAR_RESPONSE_SLOPE`'s slope) is taken as

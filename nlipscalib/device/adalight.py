@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.errors import DeviceError
+from ..core.errors import DeviceError, check_kind
 from .controller import _check_colours, _check_index
 from .errors import DeviceDisconnectedError, WrongDeviceError
 from .port import BAUD_RATE, _serial, check_baudrate, open_port
@@ -114,6 +114,7 @@ class AdalightController:
         reconnect_s : float
             How long to wait for an unplugged board to come back before DeviceDisconnectedError, s.
         """
+        check_kind(n_leds, (int, np.integer), "n_leds", "the strip's whole number of LEDs")
         if n_leds < 1:
             raise DeviceError(f"{url}: an Adalight strip needs at least 1 LED, got {n_leds}")
         baudrate = check_baudrate(baudrate, f"{url}: baudrate")  # an int: frame_time_s divides by it

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.errors import CaptureError, ConfigError, require
+from ..core.errors import NUMBER, PATH, CaptureError, ConfigError, check_kind, require
 from ..core.imageio import opencv_path, read_image
 from ..core.sensor_response import eight_bit_table, undo_tone_curve
 from ..core.tolerances import (
@@ -86,6 +86,17 @@ class CameraSettings:
     a curve measured by ``nlips calibrate-camera-response``: ``--camera-response FILE``)."""
 
     def __post_init__(self):
+        whole = (int, np.integer)
+        kinds = {name: (NUMBER, type(None)) for name in ("exposure_ms", "gain", "white_balance_k")}
+        kinds |= {name: (*whole, type(None)) for name in ("width", "height")}
+        kinds |= {name: whole for name in ("buffer_size", "flush_frames", "average")}
+        for name, kind in kinds.items():  # "'>' not supported between 'str' and 'int'" named no setting
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, kind):
+                raise ConfigError(f"camera settings: {name} must be a number, got {value!r}")
+        for name in ("raw", "linear_gamma"):  # "no" was taken as True
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ConfigError(f"camera settings: {name} must be True or False, got {getattr(self, name)!r}")
         if self.buffer_size < 1 or self.flush_frames < 0 or self.average < 1:
             raise ConfigError(
                 f"camera settings need buffer_size >= 1, flush_frames >= 0, average >= 1; got "
@@ -165,6 +176,7 @@ def to_stored(frame: np.ndarray, name: str = "frame", tone_curve: np.ndarray | N
     ``cv2.LUT``) on its uint8 values, bit for bit the 65536-entry table on the shifted ones; 0.3 ms a 640x480 frame
     against 0.9 for the shift alone (NumPy) and 2-4 with the curve (benchmarks/RESULTS.md, s29-lut8).
     """
+    check_kind(frame, np.ndarray, "frame", "an image array as OpenCV gives it ((H, W) or (H, W, 3), 8 or 16 bit)")
     if frame.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{name}: unsupported sample type {frame.dtype} (8- or 16-bit images only)")
     channels = 1 if frame.ndim == 2 else frame.shape[2] if frame.ndim == 3 and frame.shape[2] in (3, 4) else 0
@@ -577,6 +589,8 @@ def open_source(
     gain, white balance, gamma; None: :class:`CameraSettings`' defaults), of which a folder or sequence uses
     ``average`` alone; ``reported``: refusals of a live camera not to be said
     again (:func:`report_refusals`); ``tone_curve``: undone on every frame (:attr:`FrameSource.tone_curve`)."""
+    check_kind(spec, (int, *PATH), "spec", "a camera index (0), a device path, a folder of frames or a video file")
+    check_kind(settings, (CameraSettings, type(None)), "settings", "a CameraSettings, or None (its defaults)")
     settings = settings or CameraSettings()
     if isinstance(spec, int) or str(spec).isdigit():
         return OpenCVSource(int(spec), settings, reported, tone_curve)

@@ -12,6 +12,7 @@ a reference whose LED frames are all black or saturated, which nothing downstrea
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -21,18 +22,34 @@ from ..core.dark_pedestal import camera_dn, even_dark_offset
 from ..core.errors import CaptureError, require
 from ..core.lag_blind import say_lag_blind
 from ..core.repeated_frames import ExpectedLight, dark_everywhere_line, frame_checks, lagged_line, repeated_line
-from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
+from ..core.sensor_response import (
+    CAMERA_SETTINGS_GUIDE,
+    DECLARE_TONE_CURVE,
+    TONE_CURVE_LIFTS_DARK,
+    SensorResponse,
+    linearise,
+    undo_tone_curve,
+)
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
     DARK_FRAME_OFFSET,
+    DECLARED_CURVE_SLOPE,
     EXPOSURE_LIGHT_FRACTION,
     EXPOSURE_LIT_SHARE,
     EXPOSURE_SATURATED_SHARE,
     EXPOSURE_UNUSABLE_SHARE,
+    LINEAR_RESPONSE_SLOPE,
 )
 
 NAMED = 3
 """Most files a warning names (then "and N more")."""
+
+ResponseSlope = Callable[[np.ndarray, np.ndarray], "float | None"]
+"""How the LED frames grow with the light: ``slope(led_frames, dark)``, the (L, H, W, 3) uint16 LED frames and the
+(H, W, 3) uint16 dark frame (stored values, a declared tone curve undone), to the median log-log slope of each
+pixel's dark-subtracted values against the sensor model's light (1: linear; ~0.5: gamma-encoded), None when it cannot
+be told. The solve's check (``solver.led_checks.recorded_response_slope``), which the CLI wires in
+(``cli.capture_checks``): device/ never imports solver/."""
 
 
 def check_exposure(
@@ -42,6 +59,7 @@ def check_exposure(
     gel: np.ndarray | None = None,
     reference: bool = False,
     expected: ExpectedLight | None = None,
+    response_slope: ResponseSlope | None = None,
 ) -> list[str]:
     """The exposure warnings of one captured press (none when it is well exposed).
 
@@ -61,12 +79,17 @@ def check_exposure(
     expected : ExpectedLight, optional
         The image model's light on the undeformed gel (:func:`nlipscalib.core.repeated_frames.model_light`): rows
         that look dark in every LED frame are judged again against it (a wide view's dome base is lit less).
+    response_slope : ResponseSlope, optional
+        The tone-curve check of a ``reference`` (asked once, ~0.3 s at 640x480): LED frames not linear in the light
+        are warned about first (:func:`_tone_curve_lines`), and with a dark frame evenly above the black level
+        refused naming the tone curve, not the black level (:func:`_refuse_pedestal`); None: not judged.
 
     Returns
     -------
     list of str
-        At most six lines: the black LED frames, the over-exposed frames, the repeated LED frames, the partly
-        lagged ones, rows dark in every LED frame, the JPEG-compressed LED frames.
+        At most seven lines: a ``reference``'s tone curve (:func:`_tone_curve_lines`), the black LED frames, the
+        over-exposed frames, the repeated LED frames, the partly lagged ones, rows dark in every LED frame, the
+        JPEG-compressed LED frames.
 
     Raises
     ------
@@ -89,10 +112,15 @@ def check_exposure(
         for name in names
         if clipped[f"{name}.png"] < EXPOSURE_UNUSABLE_SHARE and not _lit(frames[name], dark, response, gel)
     ]
+    lines = []
     if reference:
         _refuse_unusable(folder, names, black, clipped, where)
-        _refuse_pedestal(folder, frames["dark"], stored_dark, response, gel, where)
-    lines = [_black_line(folder, names, black)] if black else []
+        slope = None
+        if response_slope is not None:  # the LED frames in the light, as the dark frame
+            slope = response_slope(np.stack([frames[name] for name in names]), frames["dark"])
+        _refuse_pedestal(folder, frames["dark"], stored_dark, response, gel, where, slope)
+        lines += _tone_curve_lines(folder, response, slope)  # first: every other reading is of the wrong light
+    lines += [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
     lines += [over] if over else []
     lines += _repeated_lines(frames, names, response, folder, gel, outlined, expected)
@@ -225,7 +253,13 @@ def _refuse_unusable(folder: Path, names: list[str], black: list[str], clipped: 
 
 
 def _refuse_pedestal(
-    folder: Path, dark: np.ndarray, stored_dark: np.ndarray, response: SensorResponse, gel: np.ndarray, where: str
+    folder: Path,
+    dark: np.ndarray,
+    stored_dark: np.ndarray,
+    response: SensorResponse,
+    gel: np.ndarray,
+    where: str,
+    slope: float | None = None,
 ) -> None:
     """CaptureError when the reference's dark frame sits evenly above the declared black level by more than
     :data:`~nlipscalib.core.tolerances.DARK_FRAME_OFFSET` of full scale: the camera's own black level (pedestal),
@@ -234,7 +268,16 @@ def _refuse_pedestal(
     Why: such a session was captured whole without a word, and ``nlips solve`` then refused every press, naming
     ``--black-level N`` only after the lab's session (s36 device walk). The reference fixes the session's settings,
     so it is refused before any press, as a black one is. ``dark`` is in the light (a declared tone curve undone),
-    as the solve judges it; ``stored_dark`` as the camera encoded it, the values ``--black-level`` takes."""
+    as the solve judges it; ``stored_dark`` as the camera encoded it, the values ``--black-level`` takes.
+
+    A tone curve is told first: with the LED frames (in the light, as ``dark``) growing with the light to the power
+    ``slope`` (:data:`ResponseSlope`; None: not told) below :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE`
+    (the solve's limit), the refusal names the camera's tone curve (:func:`_tone_curve_refusal`). Why: a gamma-2.2
+    webcam whose dark frame held 0.3 % of full scale of light evenly was told `--black-level 20` (of 255: the curve
+    lifted it 26 times, to 7.8 %); captured so, `nlips solve` called its LED images "not linear in the light" (power
+    0.53) and refused the press as another sensor's (s37 capcheck, the /tmp/keep reference and sphere1 through a
+    gamma-2.2 encoding). A camera's own black level, subtracted, leaves linear frames (power 1.00): only the slope
+    tells the two apart."""
     samples = dark[gel]
     median = float(np.median(samples))
     black, white = response.black_level, response.white_level
@@ -243,6 +286,12 @@ def _refuse_pedestal(
         return
     bits = response.bit_depth
     pedestal = camera_dn(float(np.median(stored_dark[gel])), bits)
+    if slope is not None and slope < LINEAR_RESPONSE_SLOPE:
+        lifted = (
+            f"dark.png sits evenly above the black level {camera_dn(black, bits):g} (--black-level), its median "
+            f"{where} {pedestal:.4g} in the camera's {bits}-bit values ({100 * level:.1f} % of full scale)"
+        )
+        raise CaptureError(_tone_curve_refusal(folder, response, slope, lifted))
     raise CaptureError(
         f"{folder}/dark.png: not a dark frame of the black level {camera_dn(black, bits):g} (--black-level): the "
         f"median {where}, {pedestal:.4g} in the camera's {bits}-bit values, is "
@@ -252,3 +301,69 @@ def _refuse_pedestal(
         "capture with every LED off. The reference was not written (the session's settings are fixed only once "
         "it is)"
     )
+
+
+def _tone_curve_refusal(folder: Path, response: SensorResponse, slope: float, lifted: str) -> str:
+    """The reference's refusal when its LED frames grow with the light to the power ``slope`` (below
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE`) and its dark frame is ``lifted`` above the black
+    level: the camera's tone curve, undeclared or declared wrongly (``response.camera_response``), named first."""
+    head, cure = _tone_curve_fault(folder, response, slope)
+    return (
+        f"{head}; and {lifted}. {TONE_CURVE_LIFTS_DARK}: a --black-level would not make the frames linear (`nlips "
+        f"solve` would call them not linear, its normals wrong by degrees). {cure}. The reference was not written (the "
+        "session's settings are fixed only once it is)"
+    )
+
+
+def _tone_curve_lines(folder: Path, response: SensorResponse, slope: float | None) -> list[str]:
+    """The warning of a written reference whose LED frames grow with the light to the power ``slope``: below
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` the camera's tone curve (undeclared, or declared and
+    another), above :data:`~nlipscalib.core.tolerances.DECLARED_CURVE_SLOPE` with a curve declared linear frames
+    (undoing a curve they never had); [] otherwise or for None (not told).
+
+    Why: a gamma-encoding camera (its dark frame at the black level) was captured whole without a word, every press
+    solved later with "not linear in the light" and its normals degrees off; the session's tone curve
+    (``--camera-response``) is fixed by its reference, so the session has to be captured again, in a new folder.
+    A warning, not a refusal: the slope is judged against the design's model of the sensor, which a real sensor
+    departs from (the solve warns alike)."""
+    again = (
+        "; the session's normals would be wrong by degrees: stop (Ctrl-C) and capture it again into a new folder "
+        "(this one's settings are fixed by its reference)"
+    )
+    if slope is not None and slope < LINEAR_RESPONSE_SLOPE:
+        head, cure = _tone_curve_fault(folder, response, slope)
+        return [f"{head}{again}. {cure}"]
+    declared = response.camera_response
+    if slope is not None and declared != "linear" and slope > DECLARED_CURVE_SLOPE:
+        return [
+            f"{folder}: --camera-response declares the camera's {declared} tone curve, but with it undone each "
+            f"pixel's value grows as the LED model's light to the power {slope:.2f} (median; a linear capture: about "
+            f"1): the frames were linear already?{again}, without --camera-response (or with the camera's measured "
+            "curve, `nlips calibrate-camera-response` with the camera set as it captures)"
+        ]
+    return []
+
+
+def _tone_curve_fault(folder: Path, response: SensorResponse, slope: float) -> tuple[str, str]:
+    """What the tone-curve messages say of LED frames growing with the light to the power ``slope``: the fault
+    (``folder``: ...) and its cure, for an undeclared curve or a declared one (``response.camera_response``) that is
+    not the camera's."""
+    declared = response.camera_response
+    grows = (
+        f"each pixel's value grows as the LED model's light to the power {slope:.2f} (median; a linear capture: "
+        "about 1)"
+    )
+    if declared == "linear":
+        head = f"{folder}: the LED frames are not linear in the light: {grows}, as in gamma-encoded (sRGB) frames"
+        cure = f"Capture raw, linear frames with the camera's gamma off ({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}"
+    else:
+        head = (
+            f"{folder}: the LED frames are not linear in the light with the declared tone curve undone "
+            f"(--camera-response: {declared}): {grows}: the camera's curve is another"
+        )
+        cure = (
+            "Measure the camera's own curve once (`nlips calibrate-camera-response`, with the camera set as it "
+            f"captures) and capture with `--camera-response FILE`, or capture raw, linear frames with the camera's "
+            f"gamma off ({CAMERA_SETTINGS_GUIDE})"
+        )
+    return head, cure

@@ -41,6 +41,13 @@ def lights_out_on_exit(controller: C) -> Iterator[C]:
     ----------
     controller : LedController, AdalightController or anything with ``off()``
     """
+    if not callable(getattr(controller, "off", None)):  # it failed at the block's end, the LEDs left as they were
+        from ..core.errors import ShapeError
+
+        raise ShapeError(
+            "controller must be an LED controller (LedController.open(PORT), AdalightController) or anything with "
+            f"off(), got {type(controller).__name__}"
+        )
     previous = _chain_sigterm(lambda: _off_quickly(controller))
     try:
         yield controller

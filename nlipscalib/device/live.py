@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from ..core.atomic import write_by_name
-from ..core.errors import ConfigError
+from ..core.errors import PATH, ConfigError, ShapeError, check_kind
 from ..core.imageio import save_npz
 from .camera import EndOfFrames
 
@@ -175,6 +175,14 @@ def stream(
     -------
     LiveStats -- ``stats``
     """
+    for name, value, method, what in (
+        ("source", source, "read", "a frame source (open_source(CAMERA))"),
+        ("predict", predict, "__call__", "a predictor of stored frames (a MismatchWatch, predictor.predict_stored)"),
+    ):  # "'str' object has no attribute 'read'" came from inside the loop
+        if not callable(getattr(value, method, None)):
+            raise ShapeError(f"{name} must be {what}, got {type(value).__name__}")
+    if isinstance(sinks, (str, bytes)) or not isinstance(sinks, Iterable):
+        raise ShapeError(f"sinks must be a list of sinks (SaveSink(folder), callables), got {type(sinks).__name__}")
     sinks = list(sinks)
     stats = LiveStats() if stats is None else stats
     t_start = last_report = time.perf_counter()
@@ -232,6 +240,7 @@ class SaveSink:
         every: int = 1,
         pictures: Callable[[Path, LiveResult], None] | None = None,
     ):
+        check_kind(folder, PATH, "folder", "the folder the frames are saved in (str or Path)")
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ConfigError(f"every must be an integer >= 1 (1: every frame), got {every!r}")
         self.folder = Path(folder)

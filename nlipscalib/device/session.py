@@ -116,6 +116,10 @@ class Rig:
     nlipstac's camera``)."""
     leds_origin: str = "the sensor description"
     """Where ``leds`` come from, for messages (``the design ring16.toml``, ``the LED file leds.json``)."""
+    response_slope: Callable[[np.ndarray, np.ndarray], float | None] | None = None
+    """The tone-curve check of the reference (``device.exposure.ResponseSlope``: how its LED frames grow with the
+    light), wired in by the CLI from the solve's (``cli.capture_checks``); None: not judged, a reference's dark frame
+    evenly above the black level is then named a black level to declare."""
 
     def check(self) -> None:
         """Raise CaptureError when the parts do not fit together."""
@@ -310,7 +314,10 @@ def capture_press(
     expected = (
         None if rig.reference is None else model_light(rig.reference.depth, rig.reference.normals, rig.camera, rig.leds)
     )
-    for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0, expected=expected):
+    checked = check_exposure(
+        frames, rig.response, folder, gel, reference=index == 0, expected=expected, response_slope=rig.response_slope
+    )
+    for line in checked:
         log.warning("%s", line)
     leds = np.stack([frames[led_frame_name(i)] for i in range(len(rig.leds))])
     write_press(

@@ -112,6 +112,9 @@ def start_board(url: str, n_leds: int, *, adalight: bool = False, baudrate: int 
         The started board (None: nothing to start). Keep it referenced while its URL is in use: the URL
         table holds boards weakly; :meth:`VirtualBoard.close` frees the id.
     """
+    from ..core.errors import check_kind
+
+    check_kind(url, str, "url", "the board's port: a serial port or pyserial URL ('nlipsemu://ID' starts one)")
     if not board_missing(url):
         return None
     return VirtualBoard(n_leds, adalight=adalight, board_id=check_board_url(url), baudrate=baudrate)
@@ -155,6 +158,10 @@ class VirtualBoard:
         board_id: str | None = None,
         baudrate: int | None = None,
     ):
+        from ..core.errors import check_kind
+
+        check_kind(n_leds, (int, np.integer), "n_leds", "the board's whole number of LEDs")
+        check_kind(baudrate, (int, type(None)), "baudrate", "a line rate in baud (115200), or None: any")
         self.n_leds = int(n_leds)
         self.firmware = firmware
         self.protocol = int(protocol)

@@ -48,7 +48,7 @@ from ..core import said_once
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
 from ..core.config import OMIT_AT, to_mapping
-from ..core.errors import CaptureError, ConfigError
+from ..core.errors import PATH, CaptureError, ConfigError, check_kind, check_paths
 from ..core.file_checks import file_problem
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
 from ..core.imageio import save_npz
@@ -429,13 +429,19 @@ def build_dataset(
     another sensor (with ``failed``: only when every press is), ConfigError when another live build of other
     samples holds ``out`` or ``press_folders`` is empty.
     """
-    from ..core.capture import load_press
+    from ..core.capture import Press, load_press
     from ..core.press_checksums import files_as_read
     from ..core.press_meta import listed_files, read_meta
 
+    each = "a press folder's path (str or Path) or a loaded Press"
+    given = check_paths(press_folders, "press_folders", "a list of press folders", (*PATH, Press), each)
+    check_kind(reference_folder, (*PATH, Press), "reference_folder", f"the undeformed capture: {each}")
+    check_kind(out, PATH, "out", "the dataset folder's path (str or Path)")
+    check_kind(cfg, (SamplingConfig, type(None)), "cfg", "a SamplingConfig, or None (defaults)")
+    reference_folder = getattr(reference_folder, "folder", reference_folder)  # a loaded Press: its folder
     cfg = cfg or SamplingConfig()
     out = Path(out)
-    folders = [Path(f) for f in press_folders]
+    folders = [Path(getattr(f, "folder", f)) for f in given]
     if not folders:  # a glob that matched nothing: it wrote a dataset of no sample, which train then refused
         raise ConfigError(f"{out}: no press folders given (press_folders is empty): nothing to build the dataset from")
     run = run or dataset_run(folders, reference_folder, cfg, result_dir)

@@ -467,6 +467,8 @@ def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = (
     capture settings a press was taken with otherwise than the calibration (:func:`capture_changes`), named as the
     cause instead of a guess from the brightness.
     """
+    check_kind(frame, Frame, "frame", "a Frame (Predictor.predict's result)")
+    check_kind(where, PATH, "where", "what the frame is of, for the message: a press folder's path or a name")
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
         return drift_warning(frame, where)
     brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
@@ -564,6 +566,9 @@ def to_reconstruction(
     """
     from ..core.reconstruction import Reconstruction
 
+    check_kind(frame, Frame, "frame", "a Frame (Predictor.predict's result)")
+    check_kind(predictor, Predictor, "predictor", "the Predictor that made the frame")
+    check_kind(source, PATH, "source", "the name of the press or image the frame is of (str)")
     valid = predictor.valid
     H, W = valid.shape
     nan = np.full((H, W), np.nan, np.float32)
@@ -606,6 +611,7 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     from ..core.sensor_record import describe_sensor
     from ..core.sensor_response import undo_tone_curve
 
+    check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
     folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)  # each bad key named, as load_press does

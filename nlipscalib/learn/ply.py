@@ -42,6 +42,9 @@ def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None =
     mesh : also write the grid triangles (:func:`grid_faces`) between neighbouring points
     """
     check_kind(path, PATH, "path", "the .ply file's path (str or Path)")
+    check_kind(points, np.ndarray, "points", "an (H, W, 3) array, mm (rec.points, frame.points)")
+    check_kind(normals, (np.ndarray, type(None)), "normals", "an (H, W, 3) array of unit normals, or None")
+    check_kind(mesh, bool, "mesh", "True or False")
     shapes = f"points {np.shape(points)}" + ("" if normals is None else f", normals {np.shape(normals)}")
     if np.ndim(points) != 3 or np.shape(points)[-1] != 3 or (normals is not None and normals.shape != points.shape):
         raise ShapeError(f"write_ply needs (H, W, 3) points (and normals of their shape), got {shapes}")

@@ -7,6 +7,7 @@ import logging
 
 import numpy as np
 
+from ..core.errors import ShapeError, check_kind
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..progress import RepeatedWarning
 from .infer import REFRESH_REMEDY, Frame, Predictor, mismatch_warning
@@ -35,6 +36,9 @@ class MismatchWatch:
     """
 
     def __init__(self, predictor: Predictor, name: str, in_light: bool = False) -> None:
+        if not callable(getattr(predictor, "predict_stored", None)):  # a Predictor, or one standing in for it
+            raise ShapeError(f"predictor must be a Predictor (Predictor(MODEL)), got {type(predictor).__name__}")
+        check_kind(name, str, "name", "what the frames come from, for the messages (a str: 'camera')")
         self.predictor, self.name = predictor, name
         self.in_light = in_light
         """The frames have the calibration's tone curve undone already (a source opened with the predictor's

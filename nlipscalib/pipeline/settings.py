@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core import tolerances
-from ..core.errors import CaptureError, ConfigError
+from ..core.errors import PATH, CaptureError, ConfigError, check_kind
 from ..core.sensor import UNRENDERED_DESIGN_KEYS
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when settings are made
@@ -92,6 +92,9 @@ def make_settings(
         emitters, radius = disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
+    check_kind(
+        reference, (*PATH, type(None)), "reference", "the undeformed capture's folder (str or Path), a Press, or None"
+    )
     return SolveSettings(
         roi=_resolve_roi(roi),
         led_subset=subset,

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core import said_once
-from ..core.errors import CaptureError, ConfigError, NlipsError, NoContactError
+from ..core.errors import PATH, CaptureError, ConfigError, NlipsError, NoContactError, check_kind, check_paths
 from ..core.reconstruction import (
     Reconstruction,
     check_replaceable,
@@ -69,6 +69,7 @@ def solve_folder(
     ConfigError naming the press, ``out`` and the other run's settings when a live run of other settings holds
     ``out`` (its result is never replaced while it runs; see :func:`solve_presses`).
     """
+    check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
     settings = make_settings(
         reference=reference,
         roi=roi,
@@ -147,6 +148,7 @@ def solve_presses(
     """
     from ..report import figure_level
 
+    folders = check_paths(folders, "folders", "a list of press folders' paths (str or Path)")
     settings = make_settings(
         reference=reference,
         roi=roi,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 from pathlib import Path
 from typing import Literal
 
@@ -72,6 +73,10 @@ class IndenterConfig:
     def __post_init__(self):
         if self.kind not in _ORIENTATIONS:
             raise ConfigError(f"unknown indenter kind {self.kind!r} (known: {', '.join(_ORIENTATIONS)})")
+        for name in ("size", "relief", "length", "count"):  # as PressConfig's numbers: not a TypeError from ">"
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+                raise ConfigError(f"indenter.{name}: must be a number, got {value!r}")
         if not self.size > 0:
             raise ConfigError(f"indenter.size must be > 0, got {self.size}")
         allowed = _ORIENTATIONS[self.kind]

@@ -22,7 +22,7 @@ from typing import Literal
 
 from ..core.camera import Camera
 from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file, to_mapping
-from ..core.errors import ConfigError
+from ..core.errors import PATH, ConfigError, check_kind
 from ..core.leds import Led
 from ..core.sensor import MAX_EMITTER_DIAMETER_MM, SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
 from ..core.sensor_response import SensorResponse
@@ -325,6 +325,7 @@ def load_scene(path: str | Path | None = None) -> SceneConfig:
     """
     if path is None:
         path = DEFAULT_SCENE
+    check_kind(path, PATH, "path", "a scene file's path (str or Path) or a shipped scene's name ('nlipstac')")
     path = Path(path)
     if not path.exists() and not path.suffix:
         if not (SCENES_DIR / f"{path}.toml").exists():  # a typo'd name, not a missing "config file"

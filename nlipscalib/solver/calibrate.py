@@ -37,7 +37,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
-from ..core.errors import CaptureError, ConfigError
+from ..core.errors import NUMBER, CaptureError, ConfigError, check_kind
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import dark_everywhere_line, dark_line, frame_checks
 from .calibration_bands import (
@@ -152,6 +152,8 @@ class LedCalibration:
         return out
 
 
+PRESSES_KIND = "an undeformed capture (a Press or its folder's path, str or Path), or a list of them"
+"""What :func:`calibrate_leds`' ``presses`` must be, as its kind check says it."""
 FIT_PIXELS = 76_800
 """Pixels of the frame that :func:`default_stride` keeps for the LED fit: a 640x480 capture at stride 2. Why: a
 larger camera's fit at stride 2 costs the frame's pixels and gains nothing. Measured at 1280x960 (one bounce, 2 spp,
@@ -228,7 +230,9 @@ def calibrate_leds(
     be profiled: an INFO line).
     """
     one = isinstance(presses, (Press, str, os.PathLike))
+    check_kind(presses, (Press, str, os.PathLike, list, tuple), "presses", PRESSES_KIND)
     presses = [as_press(p, "presses") for p in ([presses] if one else list(presses))]
+    check_kind(led_radius, NUMBER, "led_radius", "a number of mm (0: point LEDs)")
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)

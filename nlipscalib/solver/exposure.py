@@ -13,7 +13,7 @@ from ..core import tolerances
 from ..core.capture import Press
 from ..core.dark_pedestal import camera_dn, even_dark_offset
 from ..core.repeated_frames import ExpectedLight, model_light
-from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE, TONE_CURVE_LIFTS_DARK, redo_tone_curve
 
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
 """What to do about saturated LED images."""
@@ -176,12 +176,11 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
         above = f"{percent(level)} of full scale above the black level {black:g}"
         return f"{name}: its median on the gel, {median:g}, is {above}{curve}", True
     if level > 0 and even_dark_offset(press.dark[gel], median - black):
-        dn = camera_dn(median, press.response.bit_depth)
         return (
             f"{name}: not a dark frame of the black level {black:g}: its median on the gel, {median:g}, is "
             f"{percent(level)} of full scale above it and even across the gel, as a camera's own black level "
-            f"(pedestal) is: capture again with it declared (`nlips capture --black-level {dn:.4g}`, in the camera's "
-            f"{press.response.bit_depth}-bit values); if that level is right, light reached it (an LED lit, or room "
+            f"(pedestal) is: capture again with it declared (`nlips capture --black-level "
+            f"{_black_level_hint(press, gel)}); if that level is right, light reached it (an LED lit, or room "
             "light?): capture it with every LED off",
             True,
         )
@@ -200,6 +199,23 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
     )
 
 
+def _black_level_hint(press: Press, gel: np.ndarray) -> str:
+    """The ``--black-level`` a dark frame evenly above the black level asks for, as ``nlips capture`` takes it: the
+    median of the ``gel`` samples in the camera's own values (:func:`~nlipscalib.core.dark_pedestal.camera_dn`), a
+    declared tone curve applied again (:func:`~nlipscalib.core.sensor_response.redo_tone_curve`; the press is loaded
+    with it undone): the end of the option and what its value is in.
+
+    Why: a press declaring the sRGB curve, its dark frame 22 of 255 as the camera gave it, was told
+    `--black-level 2.047`, its linear value, where the capture of those frames had said 22 (s37 capcheck)."""
+    bits = press.response.bit_depth
+    response = press.response
+    encoded = float(np.median(redo_tone_curve(press.dark[gel], response.tone_curve())))
+    values = f"in the camera's {bits}-bit values"
+    if response.camera_response != "linear":
+        values += f" as it encodes them, its {response.camera_response} curve not undone"
+    return f"{camera_dn(encoded, bits):.4g}`, {values}"
+
+
 def _tone_curve_cause(press: Press) -> str:
     """The likely cause of a dark frame above the black level when the LED images are not linear in the light
     (:func:`.led_checks.recorded_response_slope` below ``tolerances.LINEAR_RESPONSE_SLOPE``): a tone curve, "" when
@@ -215,8 +231,7 @@ def _tone_curve_cause(press: Press) -> str:
         return ""
     return (
         f", and the LED images are not linear in the light (each pixel's value grows as the LED model's light to "
-        f"the power {slope:.2f}; a linear capture: about 1): gamma-encoded (sRGB) frames? A tone "
-        f"curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
-        f"offset and noise above the black level. Capture raw, linear frames with the camera's gamma off "
+        f"the power {slope:.2f}; a linear capture: about 1): gamma-encoded (sRGB) frames? {TONE_CURVE_LIFTS_DARK}. "
+        f"Capture raw, linear frames with the camera's gamma off "
         f"({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}"
     )

@@ -908,12 +908,12 @@ def linearity_notes(press: Press, live: Sequence[int], indirect: Sequence[np.nda
 
 
 def recorded_response_slope(
-    press: Press, live: Sequence[int], indirect: Sequence[np.ndarray] | None = None
+    press: Press, live: Sequence[int], indirect: Sequence[np.ndarray] | None = None, min_fit: float = 0.0
 ) -> float | None:
     """:func:`response_slope` of the ``live`` LED images (0-based) against the light of the LEDs the capture
     records (meta.json), never calibrated ones (:func:`linearity_notes` says why), plus the ``indirect`` light
-    (:func:`linearity_notes`; None: :func:`own_indirect_light`); None without an undeformed surface or with too
-    few lit pixels.
+    (:func:`linearity_notes`; None: :func:`own_indirect_light`); None without an undeformed surface, with too
+    few lit pixels, or when the power law fits worse than ``min_fit`` (:func:`response_slope`).
 
     Why the indirect light: against the direct light alone a linear capture's slope is its direct share, not 1:
     the capsule's own interreflection gave 0.28-0.34 on every linear capture (warned as gamma-encoded), the
@@ -924,7 +924,7 @@ def recorded_response_slope(
     if indirect is None:
         indirect = own_indirect_light(press)
     image, model = _samples(press, press.leds, live, indirect)
-    return None if image is None else response_slope(image, model)
+    return None if image is None else response_slope(image, model, min_fit)
 
 
 def own_indirect_light(press: Press) -> Sequence[np.ndarray] | None:
@@ -939,17 +939,21 @@ def own_indirect_light(press: Press) -> Sequence[np.ndarray] | None:
     return model.undeformed_light_per_led(press.camera.shape)
 
 
-def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
+def response_slope(image: np.ndarray, model: np.ndarray, min_fit: float = 0.0) -> float | None:
     """Median over pixels of the least-squares slope of log(image) against log(model) across the LEDs: 1 for a
     linear response without interreflection, ``gamma`` for a camera that records ``x ** gamma``.
 
     Parameters
     ----------
     image, model : (L, N, 3) float -- LED images and their modelled light at N pixels (:func:`_samples`).
+    min_fit : float -- the least median R^2 of those fits for the slope to be told: images that follow no power
+        law of the model (frames of another scene, flat test frames) give a slope that says nothing of a tone curve
+        (``nlips capture``'s reference check asks :data:`~nlipscalib.core.tolerances.RESPONSE_POWER_LAW_FIT`; the
+        solve 0, any fit).
 
     Returns
     -------
-    float, or None when fewer than 10 pixels have light from every LED
+    float, or None when fewer than 10 pixels have light from every LED, or the fit is worse than ``min_fit``
     """
     image, model = image.mean(axis=-1), model.mean(axis=-1)
     usable = (image > tolerances.LIT_LEVEL).all(axis=0) & (model > 0).all(axis=0)
@@ -957,7 +961,10 @@ def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
         return None
     x, y = np.log(model[:, usable]), np.log(image[:, usable])
     x, y = x - x.mean(axis=0), y - y.mean(axis=0)
-    return float(np.median((x * y).sum(axis=0) / np.maximum((x * x).sum(axis=0), 1e-12)))
+    sxx, sxy = (x * x).sum(axis=0), (x * y).sum(axis=0)
+    if min_fit > 0 and np.median(sxy * sxy / np.maximum(sxx * (y * y).sum(axis=0), 1e-24)) < min_fit:
+        return None
+    return float(np.median(sxy / np.maximum(sxx, 1e-12)))
 
 
 def _samples(

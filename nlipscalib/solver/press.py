@@ -42,7 +42,7 @@ import numpy as np
 from ..core import said_once, tolerances
 from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
-from ..core.errors import CaptureError, ShapeError
+from ..core.errors import CaptureError, ShapeError, check_kind
 from ..core.lag_blind import lag_blind_pairs
 from ..core.leds import Led
 from ..core.repeated_frames import (
@@ -128,6 +128,13 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
+    check_kind(
+        kwargs.get("indirect"),
+        (Press, np.ndarray, type(None)),
+        "indirect",
+        "the undeformed capture (a Press or its folder's path), an (L, H, W, 3) array of indirect light, or None",
+    )
+    check_kind(kwargs.get("options"), (SolverOptions, type(None)), "options", "a SolverOptions, or None (defaults)")
     if kwargs.get("leds") is not None:
         kwargs["leds"] = _given_leds(press, kwargs["leds"])
     if not isinstance(kwargs.get("indirect"), Press):  # against an undeformed capture they may go unused

@@ -233,3 +233,24 @@ def test_a_per_channel_table_undoes_each_channel_with_its_curve_in_captures_and_
     record = describe_sensor(press.camera, press.leds, press.response)
     check_sensor_record(json.loads(json.dumps(record)), "model.pt")
     assert np.array_equal(response_table_of(record), table)
+
+
+def test_a_tone_curve_is_redone_on_linear_values_to_the_cameras_own():
+    """``redo_tone_curve``: the camera's encoded values back from linear ones (sRGB, a measured curve, one per
+    channel), as the `--black-level` hint of a press declaring a curve needs them (it named linear values, s37)."""
+    from nlipscalib.core.sensor_response import redo_tone_curve, undo_tone_curve
+
+    codes = (np.arange(256, dtype=np.uint16) << 8).repeat(3).reshape(-1, 3)
+    for response in (
+        SensorResponse(bit_depth=8, black_level=0.0, white_level=65280.0, camera_response="srgb"),
+        _response(),
+        _response([_gamma_curve(), _gamma_curve(), tuple(np.linspace(0, 1, 256) ** 2.0)]),
+    ):
+        table = response.tone_curve()
+        linear = undo_tone_curve(codes.copy(), table)
+        again = redo_tone_curve(linear, table)
+        # the middle of the stored values that undo to the same light: the camera's code to an eighth of a step,
+        # above the darkest codes that gamma 2.2 maps to the same 16-bit light (codes 0 and 1: 0)
+        assert np.all(undo_tone_curve(np.rint(again).astype(np.uint16), table) == linear)
+        assert np.abs(again - codes)[8:].max() <= 32, response.camera_response
+    assert redo_tone_curve(codes, None) is codes

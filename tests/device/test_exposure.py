@@ -148,3 +148,59 @@ def test_a_reference_whose_dark_frame_sits_evenly_above_the_black_level_is_refus
     lamp = _frames()
     lamp["dark"] = np.linspace(0, 2 * DARK, W, dtype=np.uint16)[None, :, None] * np.ones((H, 1, 3), np.uint16)
     assert check_exposure(lamp, undeclared, tmp_path / "reference", reference=True) == []
+
+
+def test_a_pedestal_reference_whose_led_frames_are_not_linear_is_refused_naming_the_tone_curve(tmp_path):
+    """A gamma camera's curve lifts its small dark offset evenly above the black level: the refusal named
+    `--black-level` and the solve then called the frames not linear (s37). With the tone-curve check given
+    (``response_slope``, the solve's, wired by the CLI) the refusal names the curve first: undeclared, the ways to
+    linear frames; declared, that the curve is another. Linear frames (slope 1) keep the black level's refusal."""
+    undeclared = SensorResponse(bit_depth=12, black_level=0.0, white_level=65520.0)
+    asked = []
+
+    def slope(value):
+        def response_slope(leds, dark):
+            asked.append((leds.shape, dark.shape))
+            return value
+
+        return response_slope
+
+    with pytest.raises(CaptureError) as refused:
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(0.48))
+    message = str(refused.value)
+    assert asked == [((L, H, W, 3), (H, W, 3))]
+    assert message.startswith(
+        f"{tmp_path / 'reference'}: the LED frames are not linear in the light: each pixel's value grows as the LED "
+        "model's light to the power 0.48 (median; a linear capture: about 1), as in gamma-encoded (sRGB) frames; and "
+        "dark.png sits evenly above the black level 0 (--black-level), its median of the pixels 62.5 in the camera's "
+        "12-bit values (1.5 % of full scale). A tone curve is steepest at black"
+    )
+    assert "--camera-response srgb" in message and "`--black-level" not in message
+    assert message.endswith("The reference was not written (the session's settings are fixed only once it is)")
+
+    srgb = SensorResponse(bit_depth=12, black_level=0.0, white_level=65520.0, camera_response="srgb")
+    with pytest.raises(CaptureError, match=r"declared tone curve undone \(--camera-response: srgb\).*is another"):
+        # 5000 of 65520 is 0.7 % of full scale in the light (sRGB undone): a dark frame of the pedestal's kind
+        check_exposure(_frames(dark=5000), srgb, tmp_path / "reference", reference=True, response_slope=slope(0.6))
+
+    with pytest.raises(CaptureError, match=r"capture again with it declared \(`--black-level 62\.5`\)"):
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(1.0))
+    with pytest.raises(CaptureError, match=r"`--black-level 62\.5`"):  # not told: the black level, as before
+        check_exposure(_frames(), undeclared, tmp_path / "reference", reference=True, response_slope=slope(None))
+
+
+def test_a_reference_whose_led_frames_are_not_linear_is_warned_about_first(tmp_path):
+    """A gamma camera whose dark frame sits at the black level was captured whole without a word; each press's solve
+    then warned "not linear in the light", its normals degrees off, and the session's tone curve is fixed by its
+    reference (s37). The reference is warned about first, the session to be captured again; linear frames are not,
+    nor a press (the check is the reference's); linear frames declared sRGB are named the other way."""
+    srgb = SensorResponse(bit_depth=16, black_level=float(DARK), white_level=65535.0, camera_response="srgb")
+    folder = tmp_path / "reference"
+    lines = check_exposure(_frames(), RESPONSE, folder, reference=True, response_slope=lambda leds, dark: 0.5)
+    assert len(lines) == 1 and lines[0].startswith(f"{folder}: the LED frames are not linear in the light: "), lines
+    assert "stop (Ctrl-C) and capture it again into a new folder" in lines[0] and "--camera-response srgb" in lines[0]
+    assert check_exposure(_frames(), RESPONSE, folder, reference=True, response_slope=lambda leds, dark: 1.0) == []
+    assert check_exposure(_frames(), RESPONSE, folder, reference=True, response_slope=lambda leds, dark: None) == []
+    assert check_exposure(_frames(), RESPONSE, tmp_path / "press_0001", response_slope=lambda leds, dark: 0.5) == []
+    (line,) = check_exposure(_frames(), srgb, folder, reference=True, response_slope=lambda leds, dark: 1.6)
+    assert "declares the camera's srgb tone curve" in line and "power 1.60" in line and "linear already?" in line

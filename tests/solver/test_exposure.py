@@ -229,3 +229,31 @@ def test_an_even_dark_frame_above_the_black_level_names_the_cameras_black_level(
     message, refused = dark_frame_fault(load_press(lit))
     assert refused and "(an LED lit, or room light?); capture it with every LED off" in message
     assert "--black-level" not in message
+
+
+def test_the_black_level_named_for_a_press_declaring_a_tone_curve_is_the_cameras_own_value(tmp_path):
+    """A press declaring the camera's sRGB curve (meta.json sensor.camera_response) is loaded with the curve undone,
+    and its even dark frame was told `--black-level` in those linear values: 2.047 of 255 where the camera gave 22
+    and `nlips capture` of the same frames said 22 (s37). The value named is the camera's own, as `nlips capture
+    --black-level` takes it."""
+    import re
+
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    folder = synth.make_press(tmp_path / "srgb", "sphere")
+    black, white = synth.RESPONSE.black_level, synth.RESPONSE.white_level
+    pedestal = 8000  # added by the camera after its curve: 1.4 % of full scale in the light
+    for path in folder.glob("*.png"):
+        light = np.clip((read_png16(path).astype(float) - black) / (white - black), 0, 1)
+        encoded = np.clip(np.rint(black + pedestal + _srgb(light) * (white - black)), 0, white)
+        write_png16(path, encoded.astype(np.uint16))
+    meta = json.loads((folder / "meta.json").read_text())
+    meta["sensor"]["camera_response"] = "srgb"
+    (folder / "meta.json").write_text(json.dumps(meta))
+    recorded_anew(folder)
+    press = load_press(folder)
+    message, refused = dark_frame_fault(press)
+    encoded = float(np.median(read_png16(folder / "dark.png")[np.isfinite(press.reference.depth)]))
+    said = float(re.search(r"`nlips capture --black-level ([0-9.]+)`", message).group(1))
+    assert refused and abs(said - encoded) <= 2, message
+    assert "in the camera's 16-bit values as it encodes them, its srgb curve not undone" in message

@@ -771,3 +771,18 @@ def test_relative_gains_stay_finite_when_the_judged_leds_light_none_of_the_model
     with np.errstate(divide="raise", invalid="raise"):
         np.testing.assert_array_equal(_relative_gains(np.zeros((3, 5, 3)), np.ones((3, 5, 3))), [0.0, 0.0, 0.0])
     np.testing.assert_allclose(_relative_gains(image * 2, model, judged=[2, 3]), [0.0, 0.0, 1.0, 1.0])
+
+
+def test_a_slope_asked_to_fit_a_power_law_is_not_told_from_images_that_follow_none():
+    """``nlips capture``'s reference check asks the power law to fit (tolerances.RESPONSE_POWER_LAW_FIT): flat test
+    frames of another scene gave slope 0.06 and were named a tone curve where the black level was the fault (s37).
+    A gamma-encoded image fits (its slope told); one unrelated to the model does not (None); without ``min_fit``,
+    as the solve asks, both slopes are told as before."""
+    rng = np.random.default_rng(0)
+    model = rng.uniform(0.05, 0.8, (12, 500, 1)).repeat(3, axis=2)  # grey: the channels averaged alike
+    encoded = model ** (1 / 2.2)
+    unrelated = rng.uniform(0.05, 0.8, (12, 500, 3))
+    fit = tolerances.RESPONSE_POWER_LAW_FIT
+    assert response_slope(encoded, model, min_fit=fit) == pytest.approx(1 / 2.2, abs=1e-6)
+    assert response_slope(unrelated, model, min_fit=fit) is None
+    assert abs(response_slope(unrelated, model)) < 0.2
