@@ -41,8 +41,9 @@ def redraw(exp: Experiment, report: Path) -> Redrawn:
     ----------
     exp : the experiment that wrote the report (a results.json of another one is refused)
     report : report folder holding results.json; replaced whole (core.atomic.whole_dir) by one holding results.json,
-        the figures drawn from the work folder that it held, and the figures and report.md drawn now: none of a
-        figure the current code no longer draws is left, and a redraw that fails leaves the folder as it was
+        the figures drawn from the work folder that it held, the files that are not the report's own (anything but
+        report.md and PNG figures: a ``config.toml`` placed beside it) and the figures and report.md drawn now: none
+        of a figure the current code no longer draws is left, and a redraw that fails leaves the folder as it was
 
     Returns
     -------
@@ -89,12 +90,21 @@ def _redraw(exp: Experiment, doc: dict, report: Path) -> Redrawn:
     by = software()  # before drawing: the figures rewritten in a checkout would mark it "+dirty"
     kept = [f for f in exp.work_figures if (report / f.file).is_file()]
     with whole_dir(report, RESULTS) as folder:
-        for name in (RESULTS, *(f.file for f in kept)):  # what the new folder keeps of the old one
+        for name in (RESULTS, *(f.file for f in kept), *_not_drawn(report)):  # what the new folder keeps of the old
             shutil.copy2(report / name, folder / name)
         figures = exp.figures(cfg, rows, tables, folder, learned)
         listed = figures + [(f.caption, f.file) for f in kept]  # the order of a run's report
         write_text(folder / "report.md", markdown.report(exp, doc, tables, listed, _note(kept, by)))
     return Redrawn([name for _, name in figures] + ["report.md"], kept)
+
+
+def _not_drawn(report: Path) -> list[str]:
+    """The files of ``report`` that no report writes (not results.json, report.md or a PNG figure): kept by a redraw.
+
+    Why: docs/experiments' Q2 variants keep the ``config.toml`` they were run from beside their report, and a redraw
+    that replaced the folder whole deleted it."""
+    owned = {RESULTS, "report.md"}
+    return sorted(p.name for p in report.iterdir() if p.is_file() and p.name not in owned and p.suffix != ".png")
 
 
 def _note(kept: list[WorkFigure], sw: dict) -> str:

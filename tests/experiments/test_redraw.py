@@ -180,6 +180,15 @@ def test_a_redraw_leaves_one_report_no_figure_the_code_no_longer_draws(tmp_path)
     assert (report / "results.json").read_bytes() == (DOCS / "q1" / "results.json").read_bytes()
 
 
+def test_a_redraw_keeps_the_files_beside_the_report_that_it_does_not_write(tmp_path):
+    # the Q2 variants' config.toml lies in their report folder; the redraw replaced the folder whole and lost it
+    report = tmp_path / "q1"
+    shutil.copytree(DOCS / "q1", report)
+    (report / "config.toml").write_text("[net]\nseed = 1\n", encoding="utf-8")
+    redraw_module().redraw(get("q1"), report)
+    assert (report / "config.toml").read_text(encoding="utf-8") == "[net]\nseed = 1\n"
+
+
 def test_a_redraw_that_fails_half_way_leaves_the_report_as_it_was(tmp_path, monkeypatch):
     report = tmp_path / "q1"
     shutil.copytree(DOCS / "q1", report)
