@@ -320,7 +320,8 @@ class LedController:
         failures_before = self._checksum_failures
         line = p.encode_command(seq, command, *args)
         for attempt in range(self.retries + 1):
-            if attempt:
+            # a boot banner ended the last try: the reset is said below, not as a lost reply
+            if attempt and not (session and self._reset_seen):
                 self.resends += 1
                 # HELLO is resent while an Uno sits in its bootloader after the open: expected, so not a warning
                 level = logging.WARNING if session else logging.DEBUG
