@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 from ..core.errors import DeviceError, ShapeError
 from . import protocol as p
 from .errors import (
+    UNPLUGGED_REASON,
     BoardError,
     BoardResetError,
     DeviceDisconnectedError,
@@ -339,7 +340,7 @@ class LedController:
                 if not session:
                     raise DeviceDisconnectedError(f"{self.url}: the port failed during HELLO: {exc}") from None
                 self._reconnect(exc)
-                self._after_reset("the board was unplugged and came back")
+                self._after_reset(UNPLUGGED_REASON)
                 continue
             if reply is None or reply.seq == p.UNKNOWN_SEQ or reply.error == p.E_CRC:
                 continue

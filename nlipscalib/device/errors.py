@@ -47,6 +47,8 @@ BROWN_OUT_ADVICE = (
     "too weak: firmware/README.md, Wiring, in the nlipscalib source distribution or repository)"
 )
 """The likeliest cause of a board that resets while LEDs light, said by `nlips leds test` and `nlips capture`."""
+UNPLUGGED_REASON = "the board was unplugged and came back"
+"""``BoardResetError.reason`` of a port that failed and reopened (the board lost its power with the USB link)."""
 
 
 class BoardResetError(DeviceError):

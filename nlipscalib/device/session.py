@@ -336,13 +336,15 @@ def _reset_every_attempt(rig: Rig, folder: str | Path, attempts: int, exc: Excep
     Why: it ended with the driver's "... restored to the last acknowledged colours; retake any frame captured since
     the previous command", advice to a caller of the driver, after the capture had retaken the press (s37 device
     reset walk: the firmware in simavr reset at each attempt)."""
-    from .errors import BROWN_OUT_ADVICE, BoardResetError
+    from .errors import BROWN_OUT_ADVICE, UNPLUGGED_REASON, BoardResetError
 
     port = getattr(rig.controller, "url", "the LED board")
+    reason = getattr(exc, "reason", "")
+    cable = ", or its USB cable is loose" if reason == UNPLUGGED_REASON else ""
     return BoardResetError(
         f"{port}: the LED board reset during each of the {attempts} attempts at {Path(folder).name} "
-        f"({getattr(exc, 'reason', '') or exc}), so it was not written: {BROWN_OUT_ADVICE}",
-        getattr(exc, "reason", ""),
+        f"({reason or exc}), so it was not written: {BROWN_OUT_ADVICE}{cable}",
+        reason,
     )
 
 

@@ -43,16 +43,25 @@ def board(request, tmp_path):
     under_test.close()
 
 
+FAULTS = {
+    "reset": lambda board: board.reset(),  # brown-out, watchdog, reset button: the port stays
+    "unplug": lambda board: board.unplug(0.3),  # the USB link drops with the power and comes back
+}
+"""How the board reboots mid-capture."""
+REASONS = {"reset": "it printed its boot banner", "unplug": "the board was unplugged and came back"}
+"""``BoardResetError.reason`` of each fault."""
+
+
 class PinCamera(FrameSource):
     """Frames lit by what the board's LEDs show now: a fixed image per LED, weighted by the latched colours.
 
-    ``reset_at(reads)`` is asked before each frame is read; true resets the board there (its LEDs go dark as the
-    camera exposes)."""
+    ``reset_at(reads)`` is asked before each frame is read; true reboots the board there by ``fault`` (its LEDs go
+    dark as the camera exposes)."""
 
     bit_depth = 16
 
-    def __init__(self, board, reset_at):
-        self.board, self.reset_at, self.reads = board, reset_at, 0
+    def __init__(self, board, reset_at, fault: str = "reset"):
+        self.board, self.reset_at, self.fault, self.reads = board, reset_at, fault, 0
         rng = np.random.default_rng(0)
         self.images = rng.uniform(0.02, 0.06, (board.n_leds, H, W, 3)).astype(np.float32)
 
@@ -63,7 +72,7 @@ class PinCamera(FrameSource):
     def read(self):
         self.reads += 1
         if self.reset_at(self.reads):
-            self.board.reset()
+            FAULTS[self.fault](self.board)
         weights = self.board.latched().astype(np.float32) / 255
         light = np.einsum("lhwc,lc->hwc", self.images, weights)
         return np.clip(np.rint(light * GAIN + BLACK), 0, 65535).astype(np.uint16)
@@ -81,34 +90,41 @@ def capture(board, camera, tmp_path, monkeypatch) -> int:
     return main(args)
 
 
-def test_a_board_reset_mid_press_retakes_it_with_the_leds_lit(board, tmp_path, capsys, monkeypatch, caplog):
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_board_reset_mid_press_retakes_it_with_the_leds_lit(board, fault, tmp_path, capsys, monkeypatch, caplog):
     """Said as a lost reply too on the firmware ("sending ALL again (1/3)" before "board reset detected"): its boot
     banner came while the host waited for the reply to the next command, and that try was counted as a resend."""
     caplog.set_level(logging.WARNING)
-    camera = PinCamera(board, lambda reads: reads == SEQUENCE + 6)  # press 1, as LED 4 is read
+    camera = PinCamera(board, lambda reads: reads == SEQUENCE + 6, fault)  # press 1, as LED 4 is read
     assert capture(board, camera, tmp_path, monkeypatch) == 0
     err = capsys.readouterr().err
     warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
-    assert len(warnings) == 1 and "board reset detected (it printed its boot banner)" in warnings[0], warnings
+    assert f"board reset detected ({REASONS[fault]})" in warnings[-1], warnings
+    assert len(warnings) == (1 if fault == "reset" else 2), warnings
+    assert fault == "reset" or "port failed" in warnings[0], warnings
     assert err.count("Press 1: the LED board reset; hold still, retaking.") == 1, err
     assert "press_0001: captured in" in err and "2 attempt(s)" in err
     press = load_press(tmp_path / "s" / "press_0001")
     np.testing.assert_allclose(press.linear(press.led_images), lit(camera), atol=2e-5)  # no dark frame kept
 
 
-def test_a_board_reset_at_every_attempt_is_one_line_and_the_same_command_resumes(board, tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_board_reset_at_every_attempt_is_one_line_and_the_same_command_resumes(
+    board, fault, tmp_path, capsys, monkeypatch
+):
     """Ended with the driver's advice to its caller, "... restored to the last acknowledged colours; retake any
     frame captured since the previous command", after the capture had retaken the press."""
-    camera = PinCamera(board, lambda reads: reads > SEQUENCE and (reads - SEQUENCE) % 7 == 0)
+    camera = PinCamera(board, lambda reads: reads > SEQUENCE and (reads - SEQUENCE) % 7 == 0, fault)
     out = tmp_path / "s"
     assert capture(board, camera, tmp_path, monkeypatch) == 2
     (line,) = errors_only(capsys.readouterr().err)
+    cable = ", or its USB cable is loose" if fault == "unplug" else ""
     assert line == (
-        f"nlips capture: error: {board.url}: the LED board reset during each of the 2 attempts at press_0001 (it "
-        "printed its boot banner), so it was not written: a board that resets as its LEDs light is often browning "
-        "out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in the "
-        f"nlipscalib source distribution or repository); session {out}: 1 of 3 folders captured (reference); run "
-        "again to resume from press_0001"
+        f"nlips capture: error: {board.url}: the LED board reset during each of the 2 attempts at press_0001 "
+        f"({REASONS[fault]}), so it was not written: a board that resets as its LEDs light is often browning out (the "
+        "LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in the nlipscalib "
+        f"source distribution or repository){cable}; session {out}: 1 of 3 folders captured (reference); run again "
+        "to resume from press_0001"
     )
     assert sorted(p.name for p in out.iterdir()) == ["reference", "session.json"]  # no half-written press
     camera.reset_at = lambda reads: False  # the supply fixed
