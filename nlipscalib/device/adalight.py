@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike
 from ..core.errors import DeviceError
 from .controller import _check_colours, _check_index
 from .errors import DeviceDisconnectedError, WrongDeviceError
-from .port import BAUD_RATE, _serial, check_baudrate, open_port
+from .port import BAUD_RATE, _serial, check_baudrate, open_port, wire_seconds
 
 if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named for the hints only
     import serial
@@ -162,8 +162,7 @@ class AdalightController:
 
     def frame_time_s(self) -> float:
         """Transmission (10 bits per byte) plus WS2812 write time of one frame, s."""
-        n_bytes = 6 + 3 * self.n_leds
-        return n_bytes * 10 / self.baudrate + self.n_leds * WS2812_US_PER_LED * 1e-6
+        return wire_seconds(6 + 3 * self.n_leds, self.baudrate) + self.n_leds * WS2812_US_PER_LED * 1e-6
 
     # --- the LedController interface ------------------------------------------------------------------
     def set_led(self, index: int, rgb: ArrayLike, *, show: bool = True) -> None:
