@@ -316,9 +316,20 @@ int main(int argc, char **argv) {
         }
         if (txq_len) send_due_bytes();
         // Idle (asleep, nothing queued): block in poll instead of spinning the emulator.
-        int idle = sleeping_runs > 8 && rxq_len == 0 && txq_len == 0;
+        int asleep = sleeping_runs > 8, idle = asleep && rxq_len == 0 && txq_len == 0;
+        // Asleep with paced bytes on the line: wait for the next one's end in ppoll, not by spinning the emulator
+        double wait_s = idle ? 0.002 : 0;
+        if (asleep && !idle && byte_s > 0) {
+            double due = 1e30;
+            if (txq_len) due = tx_line_free + byte_s;
+            if (rxq_len && !xoff && rx_line_free + byte_s < due) due = rx_line_free + byte_s;
+            wait_s = due - now_s();
+            if (wait_s < 0) wait_s = 0;
+            if (wait_s > 0.002) wait_s = 0.002;
+        }
+        struct timespec wait = {0, (long)(wait_s * 1e9)};
         struct pollfd fds[2] = {{0, POLLIN, 0}, {master, POLLIN, 0}};
-        int n = poll(fds, master >= 0 ? 2 : 1, idle ? 2 : 0);
+        int n = ppoll(fds, master >= 0 ? 2 : 1, &wait, NULL);
         if (n > 0 && (fds[0].revents & (POLLIN | POLLHUP))) {
             ssize_t got = read(0, cmd + cmd_len, sizeof cmd - 1 - cmd_len);
             if (got <= 0) break;  // the test process went away
