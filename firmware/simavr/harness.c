@@ -10,6 +10,8 @@
 //   drop N         lose the next N lines the board sends: "OK drop"
 //   noise HEX      put raw bytes on the line to the host: "OK noise"
 //   unplug MS      remove the port for MS ms, then recreate it and power-cycle the MCU: "OK unplug"
+//   pace BAUD      carry bytes both ways at the wall-clock pace of an 8N1 line at BAUD (10 bits a byte; 0: as fast
+//                  as the pseudo-terminal moves them, the default): "OK pace"
 //   quit           also Ctrl-C, SIGTERM or the end of stdin: the link is removed and the harness exits 0
 #define _GNU_SOURCE
 #include <errno.h>
@@ -46,6 +48,13 @@ static uint8_t rxq[4096];
 static size_t rxq_len;
 static int drop_lines;
 static double unplugged_until;  // wall time in s, 0 when plugged
+
+// Line-rate pacing (`pace BAUD`): a pseudo-terminal has no line rate, so a byte is handed over (to the host or to the
+// MCU's UART) only once a real line would have carried it, one byte time after the previous one ended.
+static double byte_s;  // wall seconds per byte on the line, 0 when unpaced
+static uint8_t txq[8192];  // board -> host, waiting for the line
+static size_t txq_len;
+static double tx_line_free, rx_line_free;  // wall time at which each direction's line finished its last byte
 
 // WS2812 decoding
 static uint64_t last_rise, last_fall;
@@ -123,7 +132,23 @@ static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param) {
         if (dropping) drop_lines--;
     }
     at_line_start = b == '\n';
-    if (!dropping && master >= 0 && write(master, &b, 1) < 0 && errno != EAGAIN) perror("harness: write");
+    if (dropping || master < 0) return;
+    if (byte_s > 0) {
+        if (txq_len == 0 && tx_line_free < now_s()) tx_line_free = now_s();  // the line was idle: starts now
+        if (txq_len < sizeof txq) txq[txq_len++] = b;
+    } else if (write(master, &b, 1) < 0 && errno != EAGAIN) {
+        perror("harness: write");
+    }
+}
+
+// Hand the host the bytes a paced line has finished carrying.
+static void send_due_bytes(void) {
+    size_t n = 0;
+    for (double now = now_s(); n < txq_len && now >= tx_line_free + byte_s; n++) tx_line_free += byte_s;
+    if (!n) return;
+    if (master >= 0 && write(master, txq, n) < 0 && errno != EAGAIN) perror("harness: write");
+    memmove(txq, txq + n, txq_len - n);
+    txq_len -= n;
 }
 
 static void uart_xon(struct avr_irq_t *irq, uint32_t value, void *param) {
@@ -166,7 +191,7 @@ static void close_port(void) {
     close(master);
     close(slave);
     master = slave = -1;
-    rxq_len = 0;
+    rxq_len = txq_len = 0;
 }
 
 static void handle_command(char *cmd) {
@@ -198,6 +223,11 @@ static void handle_command(char *cmd) {
         close_port();
         unplugged_until = now_s() + atoi(cmd + 7) / 1000.0;
         printf("OK unplug\n");
+    } else if (!strncmp(cmd, "pace ", 5)) {
+        int baud = atoi(cmd + 5);
+        byte_s = baud > 0 ? 10.0 / baud : 0;
+        tx_line_free = rx_line_free = now_s();
+        printf("OK pace\n");
     } else if (!strcmp(cmd, "quit")) {
         unlink(link_path);
         exit(0);
@@ -277,15 +307,29 @@ int main(int argc, char **argv) {
                 if (sleeping_runs > 8) break;
             }
         }
-        // Feed the UART from the host side while its FIFO has room.
-        while (rxq_len && !xoff) {
+        // Feed the UART from the host side while its FIFO has room (paced: each byte once the line carried it).
+        double now = byte_s > 0 ? now_s() : 0;
+        while (rxq_len && !xoff && (byte_s <= 0 || now >= rx_line_free + byte_s)) {
             avr_raise_irq(uart_in, rxq[0]);
             memmove(rxq, rxq + 1, --rxq_len);
+            rx_line_free += byte_s;
         }
+        if (txq_len) send_due_bytes();
         // Idle (asleep, nothing queued): block in poll instead of spinning the emulator.
-        int idle = sleeping_runs > 8 && rxq_len == 0;
+        int asleep = sleeping_runs > 8, idle = asleep && rxq_len == 0 && txq_len == 0;
+        // Asleep with paced bytes on the line: wait for the next one's end in ppoll, not by spinning the emulator
+        double wait_s = idle ? 0.002 : 0;
+        if (asleep && !idle && byte_s > 0) {
+            double due = 1e30;
+            if (txq_len) due = tx_line_free + byte_s;
+            if (rxq_len && !xoff && rx_line_free + byte_s < due) due = rx_line_free + byte_s;
+            wait_s = due - now_s();
+            if (wait_s < 0) wait_s = 0;
+            if (wait_s > 0.002) wait_s = 0.002;
+        }
+        struct timespec wait = {0, (long)(wait_s * 1e9)};
         struct pollfd fds[2] = {{0, POLLIN, 0}, {master, POLLIN, 0}};
-        int n = poll(fds, master >= 0 ? 2 : 1, idle ? 2 : 0);
+        int n = ppoll(fds, master >= 0 ? 2 : 1, &wait, NULL);
         if (n > 0 && (fds[0].revents & (POLLIN | POLLHUP))) {
             ssize_t got = read(0, cmd + cmd_len, sizeof cmd - 1 - cmd_len);
             if (got <= 0) break;  // the test process went away
@@ -300,6 +344,7 @@ int main(int argc, char **argv) {
             }
         }
         if (n > 0 && master >= 0 && (fds[1].revents & POLLIN) && rxq_len < sizeof rxq) {
+            if (rxq_len == 0 && rx_line_free < now_s()) rx_line_free = now_s();  // the line was idle: starts now
             ssize_t got = read(master, rxq + rxq_len, sizeof rxq - rxq_len);
             if (got > 0) rxq_len += got;
         }

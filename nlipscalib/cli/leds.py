@@ -224,16 +224,14 @@ def _light_step(leds: LedBoard, frame: np.ndarray, name: str, port: str) -> None
     since the previous command", a capture's advice, at a test whose likeliest cause is the LEDs' current
     pulling the board's supply down as they light (s36 device walk: the firmware in simavr, reset mid-test)."""
     from ..core.errors import DeviceError
-    from ..device.errors import BoardResetError
+    from ..device.errors import BROWN_OUT_ADVICE, BoardResetError
 
     try:
         leds.set_all(frame)
     except BoardResetError as exc:
         raise DeviceError(
-            f"{port}: the board reset as the test lit {name} ({exc.reason}): a board that resets as its LEDs light "
-            "is often browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, "
-            "Wiring, in the nlipscalib source distribution or repository); run the test again (a lower --level "
-            "draws less)"
+            f"{port}: the board reset as the test lit {name} ({exc.reason}): {BROWN_OUT_ADVICE}; run the test again "
+            "(a lower --level draws less)"
         ) from None
 
 

@@ -20,9 +20,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..core.errors import DeviceError, check_kind
-from .controller import _check_colours, _check_index
+from . import protocol as p
+from .controller import REPLY_BYTES, _check_colours, _check_index
 from .errors import DeviceDisconnectedError, WrongDeviceError
-from .port import BAUD_RATE, _serial, check_baudrate, open_port
+from .port import BAUD_RATE, _serial, check_baudrate, open_port, wire_seconds
 
 if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named for the hints only
     import serial
@@ -33,6 +34,9 @@ MAGIC = b"Ada"
 BOOT_BANNER = b"Ada\n"
 NLIPS_BOOT = b"!BOOT fw="
 """How the nlips LED firmware's boot banner begins (docs/protocol.md): such a board ignores Adalight frames."""
+NLIPS_PROBE_S = 0.3
+"""How long the driver waits, on top of the line time, for the nlips firmware's answer to the HELLO it sends when no
+banner came (the firmware answers within ~15 ms at 115200, s37 simavr paced), s."""
 WS2812_US_PER_LED = 30.0
 """Time to clock one LED's 24 bits out at 800 kHz, microseconds."""
 
@@ -49,6 +53,19 @@ def adalight_frame(colours: np.ndarray) -> bytes:
     """Header + RGB triplets. ``colours : (N, 3) uint8, RGB``."""
     colours = np.ascontiguousarray(colours, dtype=np.uint8)
     return adalight_header(len(colours)) + colours.tobytes()
+
+
+def _hello_answer(line: bytes) -> str | None:
+    """The board description (``fw=1.0.0 proto=1 leds=12 sid=0001``) of a valid nlips reply to HELLO, else None."""
+    try:
+        marker, body = p.check_frame(line)
+        reply = p.decode_reply(body) if marker == p.REPLY_START else None
+        if reply is None or not reply.ok:
+            return None
+        p.decode_info(reply.payload)
+    except p.FrameError:
+        return None
+    return reply.payload
 
 
 class AdalightController:
@@ -133,6 +150,7 @@ class AdalightController:
                 self._port.reset_input_buffer()
                 return
             self._refuse_nlips_board(seen)
+        self._probe_nlips_firmware()
         if seen:  # bytes but no banner: what a UART at another rate makes of it
             log.warning(
                 "%s: %d bytes but no 'Ada' banner within %g s: is the sketch's line rate %d baud (--baud)? "
@@ -145,6 +163,30 @@ class AdalightController:
             return
         log.warning("%s: no 'Ada' banner within %g s; sending frames anyway", self.url, timeout)
 
+    def _probe_nlips_firmware(self) -> None:
+        """Send the nlips protocol's HELLO once; WrongDeviceError if the nlips LED firmware answers it.
+
+        Why: a board that does not reset when its port opens (the simavr harness, a board with its auto-reset cut,
+        DTR kept up since the last command) prints no banner, so ``--adalight`` on the nlips firmware only warned
+        and sent frames it ignores. An Adalight sketch skips the line: it holds no ``Ada`` header."""
+        command = p.encode_command(1, "HELLO")
+        self._port.write(command)
+        self._port.flush()
+        received = bytearray()
+        deadline = time.monotonic() + NLIPS_PROBE_S + wire_seconds(len(command) + REPLY_BYTES, self.baudrate)
+        while time.monotonic() < deadline:
+            received += self._port.read(max(1, self._port.in_waiting))
+            for line in bytes(received).split(b"\n")[:-1]:
+                if (info := _hello_answer(line)) is not None:
+                    raise self._nlips_board_error(f"{info}, its answer to HELLO")
+        self._port.reset_input_buffer()
+
+    def _nlips_board_error(self, description: str) -> WrongDeviceError:
+        return WrongDeviceError(
+            f"{self.url}: the board runs the nlips LED firmware ({description}), not Adalight: drop --adalight (the "
+            "nlips protocol acknowledges every change and reads the LEDs back)"
+        )
+
     def _refuse_nlips_board(self, seen: bytes) -> None:
         """WrongDeviceError once ``seen`` holds the nlips LED firmware's whole boot banner.
 
@@ -155,16 +197,11 @@ class AdalightController:
         end = seen.find(b"\n", start)
         if start < 0 or end < 0:
             return
-        banner = seen[start + 1 : end].split(b"*")[0].decode("ascii", "replace")
-        raise WrongDeviceError(
-            f"{self.url}: the board runs the nlips LED firmware ({banner}), not Adalight: drop --adalight (the "
-            "nlips protocol acknowledges every change and reads the LEDs back)"
-        )
+        raise self._nlips_board_error(seen[start + 1 : end].split(b"*")[0].decode("ascii", "replace"))
 
     def frame_time_s(self) -> float:
         """Transmission (10 bits per byte) plus WS2812 write time of one frame, s."""
-        n_bytes = 6 + 3 * self.n_leds
-        return n_bytes * 10 / self.baudrate + self.n_leds * WS2812_US_PER_LED * 1e-6
+        return wire_seconds(6 + 3 * self.n_leds, self.baudrate) + self.n_leds * WS2812_US_PER_LED * 1e-6
 
     # --- the LedController interface ------------------------------------------------------------------
     def set_led(self, index: int, rgb: ArrayLike, *, show: bool = True) -> None:

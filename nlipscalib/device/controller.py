@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike
 from ..core.errors import DeviceError, ShapeError
 from . import protocol as p
 from .errors import (
+    UNPLUGGED_REASON,
     BoardError,
     BoardResetError,
     DeviceDisconnectedError,
@@ -40,7 +41,7 @@ from .errors import (
     WrongDeviceError,
 )
 from .lights_out import LIGHTS_OUT_TIMEOUT_S, lights_out_on_exit, off_quietly
-from .port import BAUD_RATE, _serial, check_baudrate, open_port
+from .port import BAUD_RATE, _serial, check_baudrate, open_port, wire_seconds
 
 __all__ = [
     "BAUD_RATE",
@@ -70,6 +71,11 @@ FIRMWARE_GUIDE = "firmware/README.md in the nlipscalib source distribution or re
 """Where flashing the nlips LED firmware is explained, as messages name it: the firmware and its guide come with
 the sdist and the repository, not with an installed wheel, where a bare "firmware/README.md" is found nowhere."""
 MAX_RX_BUFFER = 8192
+REPLY_BYTES = 64
+"""Longest reply but STATE's (HELLO's: ``<01 OK fw=1.0.0 proto=1 leds=12 sid=0001*e6aa``, 46 bytes, with room for a
+longer version), bytes: with the command line, the line time added to the reply timeout."""
+STATE_REPLY_BYTES = 16
+"""STATE's reply besides its 6 hex digits per LED (``<SS OK `` and ``*CCCC``, newline), bytes."""
 
 
 class LedController:
@@ -320,7 +326,8 @@ class LedController:
         failures_before = self._checksum_failures
         line = p.encode_command(seq, command, *args)
         for attempt in range(self.retries + 1):
-            if attempt:
+            # a boot banner ended the last try: the reset is said below, not as a lost reply
+            if attempt and not (session and self._reset_seen):
                 self.resends += 1
                 # HELLO is resent while an Uno sits in its bootloader after the open: expected, so not a warning
                 level = logging.WARNING if session else logging.DEBUG
@@ -331,14 +338,14 @@ class LedController:
                     self._after_reset("it printed its boot banner")
                 self._sent = line.rstrip(b"\n")
                 self._port.write(line)
-                reply = self._await_reply(f"{seq:02x}", session)
+                reply = self._await_reply(f"{seq:02x}", session, self._line_time(command, line))
             except _serial().SerialTimeoutException:
                 continue
             except (_serial().SerialException, OSError) as exc:
                 if not session:
                     raise DeviceDisconnectedError(f"{self.url}: the port failed during HELLO: {exc}") from None
                 self._reconnect(exc)
-                self._after_reset("the board was unplugged and came back")
+                self._after_reset(UNPLUGGED_REASON)
                 continue
             if reply is None or reply.seq == p.UNKNOWN_SEQ or reply.error == p.E_CRC:
                 continue
@@ -368,9 +375,18 @@ class LedController:
             return LedIndexError(f"{self.url}: LED index {args[0]} out of range (board: {meaning})")
         return BoardError(f"{self.url}: the board refused {command}: E{reply.error} {name}: {meaning}", reply.error)
 
-    def _await_reply(self, seq: str, in_session: bool) -> p.Reply | None:
-        """The reply carrying ``seq``, or None on timeout, a corrupted reply or a boot banner mid-session."""
-        deadline = time.monotonic() + self.timeout
+    def _line_time(self, command: str, line: bytes) -> float:
+        """Time the command and its longest reply take on the line at the port's rate, s.
+
+        Why: the reply timeout held no line time, so at a slow rate (``--baud 1200``, or 100 LEDs at 4800) ALL
+        and STATE were resent before their reply could arrive, and failed (firmware in simavr, the line paced)."""
+        reply = STATE_REPLY_BYTES + 6 * self.info.n_leds if command == "STATE" else REPLY_BYTES
+        return wire_seconds(len(line) + reply, self.baudrate)
+
+    def _await_reply(self, seq: str, in_session: bool, line_time: float) -> p.Reply | None:
+        """The reply carrying ``seq``, or None on timeout (``timeout`` after the line time ``line_time``, s), a
+        corrupted reply or a boot banner mid-session."""
+        deadline = time.monotonic() + line_time + self.timeout
         while (line := self._read_line(deadline)) is not None:
             kind, value = self._classify(line)
             if kind == "corrupt" or (kind == "banner" and in_session):

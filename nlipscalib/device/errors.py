@@ -42,6 +42,15 @@ class BoardError(DeviceError):
         self.code = code
 
 
+BROWN_OUT_ADVICE = (
+    "a board that resets as its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a supply "
+    "too weak: firmware/README.md, Wiring, in the nlipscalib source distribution or repository)"
+)
+"""The likeliest cause of a board that resets while LEDs light, said by `nlips leds test` and `nlips capture`."""
+UNPLUGGED_REASON = "the board was unplugged and came back"
+"""``BoardResetError.reason`` of a port that failed and reopened (the board lost its power with the USB link)."""
+
+
 class BoardResetError(DeviceError):
     """The board rebooted during the session (its LEDs went dark; frames taken meanwhile may be wrong).
 

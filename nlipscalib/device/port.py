@@ -15,10 +15,17 @@ if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named 
 BAUD_RATE = 115200
 """Line rate of the nlips LED firmware (firmware/src/uart.h) and of Adalight-FastLED, baud; the default of
 every command that opens the LED port (``--baud``)."""
+BITS_PER_BYTE = 10
+"""Bits a byte takes on an 8N1 line (start, 8 data, stop)."""
 READ_SLICE_S = 0.02
 """Longest single blocking read, so deadlines are checked often."""
 NETWORK_SCHEMES = ("socket://", "rfc2217://")
 """URL schemes of an LED board behind a network serial server; its refusal names the server, not a cable."""
+
+
+def wire_seconds(n_bytes: int, baudrate: int) -> float:
+    """Time ``n_bytes`` take on an 8N1 serial line at ``baudrate`` (baud), s."""
+    return n_bytes * BITS_PER_BYTE / baudrate
 
 
 def _serial():

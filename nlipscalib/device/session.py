@@ -284,7 +284,7 @@ def capture_press(
         except BoardResetError as exc:
             # the LEDs went dark for a while: frames since the last command may be wrong, so retake all
             if attempt == cfg.max_retakes:
-                raise
+                raise _reset_every_attempt(rig, folder, attempt + 1, exc) from None
             # said once to the operator (the controller logged the reset and its cause): not a third time here
             log.debug("%s: %s", folder, exc)
             moved.append(None)
@@ -334,6 +334,25 @@ def capture_press(
         design=rig.design,
     )
     return {"folder": str(folder), "attempts": len(moved), "moved": moved, "seconds": seconds}
+
+
+def _reset_every_attempt(rig: Rig, folder: str | Path, attempts: int, exc: Exception) -> Exception:
+    """The error of a press whose every attempt the LED board's reset cut short: its likely cause, and that nothing
+    of the press was written.
+
+    Why: it ended with the driver's "... restored to the last acknowledged colours; retake any frame captured since
+    the previous command", advice to a caller of the driver, after the capture had retaken the press (s37 device
+    reset walk: the firmware in simavr reset at each attempt)."""
+    from .errors import BROWN_OUT_ADVICE, UNPLUGGED_REASON, BoardResetError
+
+    port = getattr(rig.controller, "url", "the LED board")
+    reason = getattr(exc, "reason", "")
+    cable = ", or its USB cable is loose" if reason == UNPLUGGED_REASON else ""
+    return BoardResetError(
+        f"{port}: the LED board reset during each of the {attempts} attempts at {Path(folder).name} "
+        f"({reason or exc}), so it was not written: {BROWN_OUT_ADVICE}{cable}",
+        reason,
+    )
 
 
 def run_session(

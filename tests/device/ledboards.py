@@ -151,6 +151,10 @@ class SimavrUnderTest:
     def drop_replies(self, n: int) -> None:
         self.ask(f"drop {n}")
 
+    def pace(self, baudrate: int) -> None:
+        """Carry bytes both ways at the pace of an 8N1 line at ``baudrate`` (0: as fast as the pseudo-terminal)."""
+        self.ask(f"pace {baudrate}")
+
     def noise(self, data: bytes) -> None:
         self.ask(f"noise {data.hex()}")
 

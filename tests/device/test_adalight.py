@@ -195,3 +195,44 @@ def test_adalight_on_a_board_running_the_nlips_firmware_is_one_line_naming_it(ca
         f"leds=12 sid={board.session_id}), not Adalight: drop --adalight (the nlips protocol acknowledges every "
         "change and reads the LEDs back)"
     )
+
+
+@pytest.mark.parametrize("kind", ["virtual", "simavr"])
+def test_adalight_on_the_nlips_firmware_that_printed_no_banner_is_refused_by_its_hello_answer(kind, tmp_path):
+    """A board that does not reset when its port opens (the simavr harness, an Uno whose DTR stayed up) prints no
+    banner: `--adalight` on the nlips firmware there only warned "no 'Ada' banner" and sent frames it ignores."""
+    from nlipscalib.device.controller import LedController
+    from nlipscalib.device.errors import WrongDeviceError
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    from .ledboards import SimavrUnderTest, firmware_build
+
+    if kind == "virtual":
+        board = VirtualBoard(12, reset_on_open=False)
+        url, close = board.url, lambda: None
+    else:
+        board = SimavrUnderTest(*firmware_build(), tmp_path / "ttyNLIPS")
+        url, close = board.url, board.close
+        LedController.open(url).close()  # its boot banner, waiting in the pseudo-terminal, read: none comes again
+    try:
+        with pytest.raises(WrongDeviceError) as refused:
+            AdalightController.open(url, 12, settle_s=0.0, boot_timeout=0.1)
+    finally:
+        close()
+    message = str(refused.value)
+    assert message.startswith(f"{url}: the board runs the nlips LED firmware (fw=1.0.0"), message
+    assert message.endswith(
+        ", its answer to HELLO), not Adalight: drop --adalight (the nlips protocol acknowledges every change and reads "
+        "the LEDs back)"
+    ), message
+
+
+def test_an_adalight_board_without_a_banner_skips_the_hello_and_takes_its_frames(caplog):
+    """The nlips HELLO sent when no banner came holds no 'Ada' header: the sketch skips it, as it skips noise."""
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(2, adalight=True, reset_on_open=False)
+    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=0.1) as leds:
+        leds.set_all(np.full((2, 3), 7, np.uint8))
+    assert "no 'Ada' banner within 0.1 s" in caplog.text
+    assert board.latched.tolist() == [[7, 7, 7]] * 2

@@ -24,6 +24,7 @@ from nlipscalib.device.controller import (
     PortBusyError,
     open_port,
 )
+from nlipscalib.device.port import BAUD_RATE
 from tests.processes import wait_until
 
 from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build
@@ -31,13 +32,17 @@ from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build
 TIMEOUT = 0.5  # s; generous enough for a loaded CI machine, short enough for fast timeout tests
 
 
-@pytest.fixture(params=["virtual", "simavr"])
+@pytest.fixture(params=["virtual", "simavr", "simavr-115200"])
 def board(request, tmp_path):
+    """The virtual board, the firmware in simavr as fast as its pseudo-terminal goes, and the firmware with its
+    bytes carried at the pace of the real line (115200 baud): a timeout too short for the line shows only there."""
     if request.param == "virtual":
         under_test = VirtualUnderTest()
     else:
         elf, harness = firmware_build()
         under_test = SimavrUnderTest(elf, harness, tmp_path / "ttyNLIPS")
+        if request.param == "simavr-115200":
+            under_test.pace(BAUD_RATE)
     yield under_test
     under_test.close()
 
@@ -157,6 +162,29 @@ def test_board_that_stays_silent_times_out(leds, board):
         leds.off()
     leds.set_led(0, (1, 2, 3))  # the next command works again
     assert board.latched()[0].tolist() == [1, 2, 3]
+
+
+SLOW_BAUD = 1200
+"""A line rate at which ALL and STATE of the 12-LED firmware (98 bytes there and back, 0.82 s) outlast TIMEOUT."""
+
+
+def test_a_slow_line_has_its_line_time_on_top_of_the_reply_timeout(tmp_path):
+    """At a slow line rate (``--baud 1200``; 100 LEDs at 4800 alike) ALL and STATE were sent again before their reply
+    could arrive, and with no retry failed: the timeout held no time for the line (the firmware in simavr, paced)."""
+    elf, harness = firmware_build()
+    board = SimavrUnderTest(elf, harness, tmp_path / "ttyNLIPS")
+    try:
+        board.pace(SLOW_BAUD)
+        shown = colours(7, board.n_leds)
+        with LedController.open(board.url, timeout=TIMEOUT, retries=0, baudrate=SLOW_BAUD) as leds:
+            leds.set_all(shown)
+            np.testing.assert_array_equal(leds.state(), shown)
+            assert leds.resends == 0
+        # the line is paced: a host that takes it for a fast one (115200) times out on it
+        with pytest.raises(DeviceTimeoutError, match="no answer to HELLO"):
+            LedController.open(board.url, timeout=0.1, retries=0).close()
+    finally:
+        board.close()
 
 
 def test_garbage_and_half_lines_from_the_board_are_skipped(board):
