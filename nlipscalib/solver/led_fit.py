@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import masks
 from ..core.blas import blas_threads
 from ..core.camera import depth_to_points
 from ..core.capture import Press
@@ -19,6 +18,7 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds, disk_shading
 from ..core.leds_jacobian import falloff_gradient
 from ..core.robust_scale import mad_scale
+from .outline import gel_outline
 from .press_checks import _other_sensor, optics_difference
 
 if TYPE_CHECKING:  # named in hints only: scipy is imported when an LED is fitted
@@ -119,6 +119,9 @@ def capture_samples(
     valid = np.isfinite(p.reference.depth)
     sub = np.zeros_like(valid)
     sub[::stride, ::stride] = True
+    # the gel's outline (a view past the gel) left out: the robust LED fits shrug its partly covered pixels off, but
+    # the reflectance profile's plain squared residual was a tenth theirs, and its least moved to 1.06x the true
+    # reflectance and the LED disks 0.056 mm along the camera's axis (benchmarks/RESULTS.md, s36-diskfit)
     sel = valid & ~gel_outline(valid) & sub
     if left_out is not None:
         sel &= ~left_out
@@ -368,19 +371,6 @@ def to_leds(
             }
         )
     return tuple(leds), tuple(float(a) for a in albedo), std
-
-
-def gel_outline(valid: np.ndarray) -> np.ndarray:
-    """(H, W) bool -- the pixels of ``valid`` with one of their 8 neighbours in the frame off it: on a view past the
-    gel its outline, pixels the gel covers only in part (a 160x120 wide view's: 0.84 on average), whose light the image
-    model (a whole pixel of surface) overstates. Left out of the LED calibration's samples: the robust LED fits shrug
-    them off, but the reflectance profile's plain squared residual was a tenth theirs, and its least moved to 1.06x the
-    true reflectance and the LED disks 0.056 mm along the camera's axis (benchmarks/RESULTS.md, s36-diskfit). None on a
-    gel-filling view (the frame's own border is no outline).
-
-    valid : (H, W) bool -- the reference's pixels on the gel (finite depth).
-    """
-    return valid & masks.dilate(~valid, 1, masks.SQUARE)
 
 
 def fit_samples(img: np.ndarray, ok: np.ndarray) -> np.ndarray:

@@ -86,7 +86,8 @@ def test_the_calibration_leaves_out_the_gels_outline_on_a_view_past_it_and_nothi
     from inside the outline only; a gel-filling view keeps every pixel of its stride (the frame's border is no
     outline), so its calibration is unchanged."""
     from nlipscalib.core import Camera, load_press
-    from nlipscalib.solver.led_fit import capture_samples, gel_outline
+    from nlipscalib.solver.led_fit import capture_samples
+    from nlipscalib.solver.outline import gel_outline
 
     from . import synth
 
