@@ -20,6 +20,7 @@ import numpy as np
 
 from . import tolerances
 from .capture import Press
+from .errors import CaptureError
 from .leds import TRICOLOR_NAMES, tricolor_groups
 from .sensor_response import linearise
 
@@ -120,14 +121,19 @@ def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.n
 def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> str | None:
     """One warning line naming the press (and the two LED images exchanged, when their exchange mends it) when its
     tri-colour frame does not hold its LED images' light (:func:`tricolor_fit` at the gel samples ``pixels``); None
-    when it does, or cannot be judged (fewer than 3 LEDs, too few unsaturated samples).
+    when it does, or cannot be judged (fewer than 3 LEDs, an LED subset, too few unsaturated samples); the reader's
+    line when the frame cannot be read (a truncated file).
 
     ``names``: the LED images' file names, LED ``i`` at ``i``; ``said``: LEDs (0-based) already named as showing
     other LEDs' light (no line when the exchange found is theirs)."""
     count = len(press.leds)
-    if count < 3:
+    listed = (press.meta.get("images") or {}).get("leds")
+    if count < 3 or not isinstance(listed, list) or len(listed) != count:  # an LED subset: its groups are not these
         return None
-    samples = tricolor_samples(press, pixels)
+    try:
+        samples = tricolor_samples(press, pixels)
+    except CaptureError as error:  # the solve does not need the frame: said, not refused
+        return f"{error}; the tri-colour frame is not compared with the LED images"
     if samples is None:
         return None
     groups = tricolor_groups(count)

@@ -84,5 +84,13 @@ def test_a_twin_press_with_images_of_two_groups_exchanged_is_named_and_clean_one
     other = load_press(swapped)
     line = tricolor_note(other, _gel_samples(other), _names(other))
     assert line is not None and "a tri-colour frame of another press" in line, line
+    # an LED subset (the groups of its images are not the frame's): not judged
+    assert tricolor_note(load_press(swapped, led_subset=range(11)), _gel_samples(other), _names(other)) is None
+    # a truncated frame: the solve does not need it, so the reader's line, no refusal
+    (swapped / "tricolor.png").write_bytes((twin[1] / "tricolor.png").read_bytes()[:3000])
+    recorded_anew(swapped)
+    cut = load_press(swapped)
+    line = tricolor_note(cut, _gel_samples(cut), _names(cut))
+    assert line.startswith(f"{swapped / 'tricolor.png'}: truncated PNG") and "not compared" in line, line
     # already named as exchanged by the LED model's check: said once, there
     assert tricolor_note(press, _gel_samples(press), _names(press), said={3, 4}) is None
