@@ -131,9 +131,12 @@ def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Coll
     if count < 3 or not isinstance(listed, list) or len(listed) != count:  # an LED subset: its groups are not these
         return None
     try:
-        samples = tricolor_samples(press, pixels)
+        frame = press.tricolor
     except CaptureError as error:  # the solve does not need the frame: said, not refused
         return f"{error}; the tri-colour frame is not compared with the LED images"
+    if not isinstance(frame, np.ndarray) or frame.shape != (*press.camera.shape, 3):  # a Press made in memory
+        return None
+    samples = tricolor_samples(press, pixels)
     if samples is None:
         return None
     groups = tricolor_groups(count)
