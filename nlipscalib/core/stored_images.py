@@ -163,7 +163,8 @@ def decode_in_background(*sources: StoredImages) -> threading.Thread:
 class LoadedOnRead:
     """A field of a frozen dataclass (:class:`.capture.Press`, :class:`.surface_files.GroundTruth`) that takes its
     value or a :class:`Loader` of it: the value is loaded at the first read and kept. Why: a solve reads neither
-    the tri-colour image nor the ground truth, and a solve that reuses the undeformed capture's results never
+    the ground truth nor, but for its check against the LED images (:mod:`.tricolor_check`, a few samples), the
+    tri-colour image, and a solve that reuses the undeformed capture's results never
     reads its images (decoding them is most of a warm process's loading); an error map reads 3 of the ground
     truth's 5 arrays."""
 

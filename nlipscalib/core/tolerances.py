@@ -939,3 +939,27 @@ its smoothness penalises the deformation from the reference (``SolverOptions.smo
 the dome's own curvature, pulled straight by a smoothness of log-depth, put the gel's outer 2-4 px 5-10 deg off (the
 twin's wide view, 84 % gel, s33-rimedge); the gel-filling default view covers the whole frame (share 1.0) and keeps
 its bits. The share of :data:`GEL_FRAME_SHARE_FOR_DISKS`, the same question."""
+
+CLOSE_PAIR_LIGHT_CORRELATION = 0.95
+"""``nlips solve``: two LEDs whose modelled lights of the undeformed dome correlate over the gel by at least this much
+are told apart by how their light differs, not by their light (:func:`nlipscalib.solver.led_checks.
+_close_pair_exchanges`): LEDs designed 0.8 mm apart correlate 0.990-0.993 (the twin's `pairs08` design), where an
+exchange of their images leaves every image correlating with its own LED's light as well as with the other's; the
+shipped ring's neighbours (4.7 mm apart) 0.8 at most, told by :data:`MODEL_EXCHANGE_FACTOR` (benchmarks/RESULTS.md,
+s37-swapcheck)."""
+CLOSE_PAIR_EXCHANGE_CORRELATION = -0.5
+"""... and their images are said to be exchanged when the two images' normalised difference ((a - b) / (a + b), the
+albedo cancelled) correlates with the LED model's at or below this: +0.89 to +0.95 on the twin's clean `pairs08`
+presses and undeformed captures (160x120, 320x240), -0.93 to -0.95 with a pair's two images exchanged; with the LED
+model's LEDs each 0.1-0.4 mm off the sensor no clean press is flagged (48 draws) and the exchange is still told
+(-0.52 to -0.94); at 0.5 mm, more than half the pairs' spacing, some clean ones are (benchmarks/RESULTS.md,
+s37-swapcheck)."""
+
+TRICOLOR_MISFIT = 0.03
+"""``nlips solve``: the tri-colour frame does not hold the light of the LED images when a channel's fit to the images
+of the LED groups lit in it (each group's images summed, one gain per group and channel, fitted: the camera's colour
+response and the tri-colour exposure) misfits by more than this share of the channel (RMS over RMS, on the gel;
+:func:`nlipscalib.core.tricolor_check.tricolor_fit`). The twin's presses and undeformed captures, clean: 0.014-0.015
+(the images' noise); two images of LEDs of different groups exchanged: 0.044 (the shipped ring's LEDs 4 and 5) and
+0.073 (LEDs designed in pairs); the LEDs' pair whose groups exchanged fits back to 0.015 (benchmarks/RESULTS.md,
+s37-swapcheck)."""

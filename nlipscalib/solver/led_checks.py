@@ -5,12 +5,17 @@ one-bounce twin's cube press): two LED images swapped (a wiring error) gave a co
 mm off, with only "the solve drifted 6.2 mm from the undeformed surface"; an LED at 30 % of its power gave 0.64 deg
 on the whole gel (0.42 clean) and "--roi auto found no contact". Both are plain in the images: each LED image is
 compared with every LED's modelled shading of the undeformed dome, after a per-pixel albedo fitted over the LEDs.
+LEDs designed 0.8 mm apart light the gel alike (0.99): their exchange is told by how their two images differ
+(:func:`_close_pair_exchanges`; it cost the twin's pairs08 sphere 0.66 -> 0.83 deg on the contact, unsaid); the
+tri-colour frame is checked against the LED images summed by colour group (:mod:`nlipscalib.core.tricolor_check`:
+an exchange across groups, or a frame of another press; s37-swapcheck).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -37,6 +42,7 @@ from ..core.repeated_frames import (
     repeated_line,
 )
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
+from ..core.tricolor_check import tricolor_note
 from . import reuse
 from .indirect import fit_indirect
 
@@ -226,6 +232,11 @@ def led_check_measured(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     off_band, banded = _correlations_off_bands(press, image, model, pixels, live, dark, corr)
     judged_here = sorted([live[k] for k in judged] + banded, key=live.index)
     exchanged = _model_exchanges(press, names, off_band, judged_here, live, misplaced, banded)
+    held = {*misplaced, *(i for found in exchanged for i in found.leds)}
+    exchanged += _close_pair_exchanges(press, names, image, model, live, [i for i in judged_here if i not in held])
+    said = {*held, *(i for found in exchanged for i in found.leds)}
+    if (crossed := tricolor_note(press, pixels, names, said)) is not None:
+        notes.append(crossed)
     order = detected_order(shows, len(press.leds))
     return LedFindings(notes, left_out, misplaced, order, measured, [*dark, *lagged], exchanged)
 
@@ -326,6 +337,52 @@ def _model_exchanges(
             "images' order)"
         )
         found.append(ExchangedImages(tuple(leds), head + cause, head=head))
+    return found
+
+
+def _close_pair_exchanges(
+    press: Press, names: list[str], image: np.ndarray, model: np.ndarray, live: list[int], judged: list[int]
+) -> list[ExchangedImages]:
+    """The images of LEDs designed so close together that their modelled lights correlate by
+    :data:`~nlipscalib.core.tolerances.CLOSE_PAIR_LIGHT_CORRELATION` or more, exchanged with each other: their
+    normalised difference ((a - b) / (a + b) per sample, the albedo cancelled) correlates with the LED model's at or
+    below :data:`~nlipscalib.core.tolerances.CLOSE_PAIR_EXCHANGE_CORRELATION`. ``image``, ``model``: (len(live), N, 3)
+    samples of the live LEDs' images and modelled light (:func:`_sampled`); ``judged``: the LEDs (0-based) to judge.
+
+    Why: LEDs 0.8 mm apart light the gel alike (their lights correlate 0.99), so an exchange of their images left
+    each image fitting its own LED as well as the other's (:func:`_model_exchanges` tells only the farther): the
+    twin's `pairs08` presses with led_01.png and led_02.png exchanged were solved with ``--reference --roi auto``
+    without a word on it (a false "the image is shifted by (+0.7, +2.0) px ... the camera moved?"), 0.66 -> 0.83 deg
+    on the sphere's contact, 0.44 -> 0.66 on the cube's. Their difference tells: +0.89 to +0.95 with the model's on
+    clean captures, -0.93 to -0.95 exchanged (benchmarks/RESULTS.md, s37-swapcheck)."""
+    seen, light = image.mean(-1), model.mean(-1)  # (len(live), N)
+    at = {i: live.index(i) for i in judged}
+    found = []
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat image: NaN, no verdict
+        alike = np.corrcoef(light)
+        for i, j in itertools.combinations(judged, 2):
+            a, b = at[i], at[j]
+            if not alike[a, b] >= tolerances.CLOSE_PAIR_LIGHT_CORRELATION:
+                continue
+            total = seen[a] + seen[b]
+            usable = total > 0
+            if usable.sum() < 10:
+                continue
+            ratio = (seen[a] - seen[b])[usable] / total[usable]
+            expected = ((light[a] - light[b]) / (light[a] + light[b]))[usable]
+            agree = float(np.corrcoef(ratio, expected)[0, 1])
+            if not agree <= tolerances.CLOSE_PAIR_EXCHANGE_CORRELATION:
+                continue
+            head = (
+                f"{press.folder}: {names[i]} and {names[j]} look exchanged (LEDs {i + 1} and {j + 1}, whose modelled "
+                f"lights of the undeformed dome correlate {alike[a, b]:.3f}: how the two images differ correlates "
+                f"{agree:+.2f} with how the LED model's lights differ, where each image in its place gives +0.9)"
+            )
+            cause = (
+                ": their images were captured in each other's place (the LED wiring, the controller's LED order or "
+                "the images' order)"
+            )
+            found.append(ExchangedImages((i, j), head + cause, head=head))
     return found
 
 

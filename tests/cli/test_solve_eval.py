@@ -480,9 +480,10 @@ def test_eval_does_not_score_a_result_its_press_was_recaptured_since(data, capsy
     assert f"remake it: `nlips solve {press} --overwrite`" in err
 
 
-def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
-    """`nlips solve` reads no tri-colour image (it is loaded at its first read, ~60 ms at 640x480 saved); the
-    dataset builder, which does, still says which file is broken, in one line."""
+def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys, caplog):
+    """`nlips solve` does not solve with the tri-colour image: its check against the LED images
+    (core.tricolor_check, s37-swapcheck) says the file cannot be read, a warning, and the press is solved; the
+    dataset builder, which needs it, still says which file is broken, in one line."""
     from nlipscalib.core.errors import CaptureError
     from nlipscalib.learn.dataset import reference_arrays
 
@@ -491,6 +492,7 @@ def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
     (press / "tricolor.png").write_bytes(b"garbage")
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
     assert (press / "nlips" / "result.npz").is_file()
+    assert "(no PNG signature); the tri-colour frame is not compared with the LED images" in caplog.text
     with pytest.raises(CaptureError, match=r"tricolor\.png: not a readable PNG image \(no PNG signature\)$"):
         reference_arrays(load_press(press))
 

@@ -1,0 +1,186 @@
+"""Does the tri-colour frame hold the light of the press's LED images? A check of the LED images' order across the
+tri-colour groups, and of the tri-colour frame itself.
+
+Why: the tri-colour frame lights LEDs 1-4 red, 5-8 green and 9-12 blue at once (:func:`.leds.tricolor_groups`), so
+each of its channels is the sum of its group's one-LED white images in that channel, times a gain (the tri-colour
+exposure over the LED images', the camera's response to that LED colour): the twin renders it so
+(``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise (1.5 %). Two LED images of
+different groups captured in each other's place break that sum, and exchanging the two back in it mends it: that
+names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In core beside the
+capture (device/ may use it); the solve wires it (:mod:`nlipscalib.solver.led_checks`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Collection
+from typing import NamedTuple
+
+import numpy as np
+
+from . import tolerances
+from .capture import Press
+from .errors import CaptureError
+from .leds import TRICOLOR_NAMES, tricolor_groups
+from .sensor_response import linearise
+
+
+class TricolorFit(NamedTuple):
+    """What :func:`tricolor_fit` found."""
+
+    misfit: np.ndarray
+    """(3,) float: each channel's RMS misfit over its RMS, the LED groups as designed."""
+    exchanged: tuple[int, int] | None
+    """The two LEDs (0-based, of different groups) whose groups exchanged fit the frame within
+    :data:`~nlipscalib.core.tolerances.TRICOLOR_MISFIT` in every channel, best of all such pairs; None when the
+    design's groups fit, or when no such pair does."""
+    exchanged_misfit: float
+    """The worst channel's misfit with ``exchanged``'s groups exchanged (nan when ``exchanged`` is None)."""
+    sources: tuple[int, ...] = (0, 1, 2)
+    """For each channel, the LED group whose light it holds most of (the design: (0, 1, 2), each its own)."""
+
+
+def channel_misfits(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Each channel's misfit of the tri-colour frame to the LED images summed by group (:func:`channel_fit`'s
+    first)."""
+    return channel_fit(tricolor, images, groups)[0]
+
+
+def channel_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each channel of the tri-colour frame fitted by the LED images summed by group.
+
+    Parameters
+    ----------
+    tricolor : (N, 3) float -- the tri-colour frame's linear light at N gel samples.
+    images : (L, N, 3) float -- the L one-LED white images' linear light at the same samples.
+    groups : (L,) int -- each image's tri-colour group (0 red, 1 green, 2 blue).
+
+    Returns
+    -------
+    misfit : (3,) float64 -- per channel c: RMS of ``tricolor[:, c]`` minus its least-squares fit by the three
+        groups' summed images in channel c (one gain each: the camera's colour response to each LED colour, the
+        exposures' ratio), over the RMS of ``tricolor[:, c]``; inf for a channel without light.
+    shares : (3, 3) float64 -- ``shares[c, g]``: the RMS of group g's fitted light in channel c over the channel's
+        (a channel lit by its own group: near 1 on its own, near 0 elsewhere).
+    """
+    summed = np.stack([images[groups == g].sum(0) for g in range(3)], axis=1)  # (N, 3 groups, 3 channels)
+    misfit, shares = np.full(3, np.inf), np.zeros((3, 3))
+    for c in range(3):
+        design, seen = summed[:, :, c], tricolor[:, c]
+        gains, *_ = np.linalg.lstsq(design, seen, rcond=None)
+        power = float(np.mean(seen * seen))
+        if power > 0:
+            misfit[c] = np.sqrt(np.mean((seen - design @ gains) ** 2) / power)
+            shares[c] = np.abs(gains) * np.sqrt(np.mean(design * design, axis=0) / power)
+    return misfit, shares
+
+
+def tricolor_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -> TricolorFit:
+    """:func:`channel_misfits` of the design's groups and, when a channel misfits beyond
+    :data:`~nlipscalib.core.tolerances.TRICOLOR_MISFIT`, of every pair of LEDs of different groups with their groups
+    exchanged (arguments as there): the pair that fits best, when it fits.
+
+    Why every such pair: two images exchanged within a group leave every group's sum as it was (nothing here tells
+    them); across groups, the pair's exchange is the one that mends all three channels (48 pairs of 12 LEDs, a few ms
+    on 2000 samples)."""
+    groups = np.asarray(groups)
+    misfit, shares = channel_fit(tricolor, images, groups)
+    sources = tuple(int(g) for g in np.argmax(shares, axis=1))
+    if not np.max(misfit) > tolerances.TRICOLOR_MISFIT:
+        return TricolorFit(misfit, None, float("nan"), sources)
+    best, best_misfit = None, np.inf
+    for i, j in itertools.combinations(range(len(groups)), 2):
+        if groups[i] == groups[j]:
+            continue
+        swapped = groups.copy()
+        swapped[[i, j]] = groups[[j, i]]
+        worst = float(np.max(channel_misfits(tricolor, images, swapped)))
+        if worst < best_misfit:
+            best, best_misfit = (i, j), worst
+    if best_misfit > tolerances.TRICOLOR_MISFIT:
+        return TricolorFit(misfit, None, float("nan"), sources)
+    return TricolorFit(misfit, best, best_misfit, sources)
+
+
+def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The tri-colour frame's and every LED image's linear light at the flat pixel indices ``pixels`` ((N,) int,
+    row-major), less the samples saturated in any of them: ((n, 3), (L, n, 3)) float64, or None when fewer than 10
+    are left."""
+    tri_stored = press.tricolor.reshape(-1, 3)[pixels]
+    dark = press.dark.reshape(-1, 3)[pixels]
+    tri = linearise(tri_stored, dark, press.response.black_level, press.response.white_level).astype(np.float64)
+    count = len(press.leds)
+    images = press.linear_led_images.reshape(count, -1, 3)[:, pixels].astype(np.float64)
+    stored = press.led_images.reshape(count, -1, 3)[:, pixels]
+    clipped = press.saturated(tri_stored).any(-1) | press.saturated(stored).any(axis=(0, 2))
+    if (~clipped).sum() < 10:
+        return None
+    return tri[~clipped], images[:, ~clipped]
+
+
+def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> str | None:
+    """One warning line naming the press (and the two LED images exchanged, when their exchange mends it) when its
+    tri-colour frame does not hold its LED images' light (:func:`tricolor_fit` at the gel samples ``pixels``); None
+    when it does, or cannot be judged (fewer than 3 LEDs, an LED subset, too few unsaturated samples); the reader's
+    line when the frame cannot be read (a truncated file).
+
+    ``names``: the LED images' file names, LED ``i`` at ``i``; ``said``: LEDs (0-based) already named as showing
+    other LEDs' light (no line when the exchange found is theirs)."""
+    count = len(press.leds)
+    listed = (press.meta.get("images") or {}).get("leds")
+    if count < 3 or not isinstance(listed, list) or len(listed) != count:  # an LED subset: its groups are not these
+        return None
+    try:
+        frame = press.tricolor
+    except CaptureError as error:  # the solve does not need the frame: said, not refused
+        return f"{error}; the tri-colour frame is not compared with the LED images"
+    if not isinstance(frame, np.ndarray) or frame.shape != (*press.camera.shape, 3):  # a Press made in memory
+        return None
+    samples = tricolor_samples(press, pixels)
+    if samples is None:
+        return None
+    groups = tricolor_groups(count)
+    fit = tricolor_fit(*samples, groups)
+    tri = (press.meta.get("images") or {}).get("tricolor", "the tri-colour frame")
+    if fit.sources != (0, 1, 2):  # the gains take any colours: a frame lit in others fits as well
+        lit = ", ".join(
+            f"its {TRICOLOR_NAMES[c]} channel the {TRICOLOR_NAMES[g]} group's"
+            for c, g in enumerate(fit.sources)
+            if g != c
+        )
+        return (
+            f"{press.folder}: {tri} holds the light of LED groups in other colours than LEDs {_groups_said(groups)} "
+            f"({lit}): the LED controller's tri-colour pattern, or the camera's colour order (RGB / BGR); a network "
+            "trained or run on this press's tri-colour frame would not match its LED images"
+        )
+    if not np.max(fit.misfit) > tolerances.TRICOLOR_MISFIT:
+        return None
+    shares = ", ".join(f"{TRICOLOR_NAMES[c]} {100 * fit.misfit[c]:.1f} %" for c in range(3))
+    head = (
+        f"{press.folder}: {tri} does not hold the light of the LED images lit in its colours (each channel against "
+        f"its LED groups' images summed: {shares} of the channel misfit; a capture's noise leaves "
+        f"{100 * tolerances.TRICOLOR_MISFIT:.0f} % or less)"
+    )
+    if fit.exchanged is None:
+        return (
+            f"{head}: a tri-colour frame of another press, its LED groups lit in other colours than LEDs "
+            f"{_groups_said(groups)}, or LED images out of order; the solve uses the LED images, a network trained "
+            "or run on this press's tri-colour frame would not match them"
+        )
+    i, j = fit.exchanged
+    if {i, j} <= set(said):
+        return None
+    return (
+        f"{head}: with {names[i]} ({TRICOLOR_NAMES[groups[i]]} group) and {names[j]} ({TRICOLOR_NAMES[groups[j]]}) "
+        f"exchanged it fits ({100 * fit.exchanged_misfit:.1f} %): the two images were captured in each other's place "
+        "(the LED wiring, the controller's LED order or the images' order): check them"
+    )
+
+
+def _groups_said(groups: np.ndarray) -> str:
+    """ "1-4 red, 5-8 green, 9-12 blue" for ``groups`` ((L,) int, contiguous runs)."""
+    runs = []
+    for g in range(3):
+        members = np.flatnonzero(groups == g) + 1
+        runs.append(f"{members[0]}-{members[-1]} {TRICOLOR_NAMES[g]}")
+    return ", ".join(runs)

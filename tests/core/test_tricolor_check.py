@@ -1,0 +1,96 @@
+"""The tri-colour frame against the press's LED images (core.tricolor_check): each channel is the sum of its LED
+group's white images times a gain, so two images of different groups captured in each other's place are named, and
+a clean capture, pressed or not, is not (benchmarks/RESULTS.md, s37-swapcheck)."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import load_press
+from nlipscalib.core.leds import tricolor_groups
+from nlipscalib.core.tricolor_check import channel_misfits, tricolor_fit, tricolor_note
+from tests.solver.twin_helpers import recorded_anew
+
+
+def _synthetic(rng, count=12, samples=2000):
+    """Positive LED images of distinct smooth shapes (a bump each), and their tri-colour frame with a colour
+    response (a little of each group's light in the other channels) and 1 % noise."""
+    x = np.linspace(0, 1, samples)
+    shapes = np.stack([0.2 + np.exp(-(((x - k / count) / 0.1) ** 2)) for k in range(count)])  # (L, N), each LED's
+    images = shapes[:, :, None] * rng.uniform(0.8, 1.2, (count, 1, 3))
+    response = 0.4 * np.eye(3) + 0.03  # group g's gain in channel c
+    groups = tricolor_groups(count)
+    tri = np.einsum("lnc,lc->nc", images, response[groups])
+    return tri * (1 + 0.01 * rng.standard_normal(tri.shape)), images, groups
+
+
+def test_images_of_two_groups_exchanged_are_named_and_their_own_order_fits():
+    tri, images, groups = _synthetic(np.random.default_rng(0))
+    assert np.max(channel_misfits(tri, images, groups)) < 0.02
+    assert tricolor_fit(tri, images, groups).exchanged is None
+    exchanged = images[[0, 1, 2, 4, 3, 5, 6, 7, 8, 9, 10, 11]]  # led_04 / led_05: red and green groups
+    fit = tricolor_fit(tri, exchanged, groups)
+    assert fit.exchanged == (3, 4) and np.max(fit.misfit) > 0.03 and fit.exchanged_misfit < 0.02
+    bgr = tricolor_fit(tri[:, ::-1], images, groups)  # a camera's channels in BGR order: fits, with the gains
+    assert bgr.sources == (2, 1, 0)
+    within = images[[1, 0, *range(2, 12)]]  # a group's own two: its sum unchanged, nothing to tell
+    assert tricolor_fit(tri, within, groups).exchanged is None
+
+
+@pytest.fixture(scope="module")
+def twin(tmp_path_factory):
+    """The twin's undeformed dome and a sphere press (160x120, one bounce, 16 spp)."""
+    pytest.importorskip("mitsuba")
+    from nlipscalib.sim.indent import PressConfig
+    from nlipscalib.sim.indenters import IndenterConfig
+    from nlipscalib.sim.press import render_press
+    from nlipscalib.sim.scene import load_scene
+
+    scene = load_scene("nlipstac").replace(render={"bounces": 1, "spp": 16}, camera={"width": 160, "height": 120})
+    root = tmp_path_factory.mktemp("tricolor")
+    sphere = PressConfig(IndenterConfig("sphere", 6.0), polar_deg=15, azimuth_deg=60, depth=1.5)
+    return render_press(scene, None, root / "undeformed", seed=4), render_press(scene, sphere, root / "sphere", seed=5)
+
+
+def _gel_samples(press):
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
+    return index[:: max(1, index.size // 2000)]
+
+
+def _names(press):
+    return list(press.meta["images"]["leds"])
+
+
+def test_a_twin_press_with_images_of_two_groups_exchanged_is_named_and_clean_ones_are_not(twin, tmp_path):
+    for folder in twin:  # undeformed, and pressed: the contact changes the frame and the images alike
+        press = load_press(folder)
+        assert tricolor_note(press, _gel_samples(press), _names(press)) is None
+    swapped = tmp_path / "swapped"
+    shutil.copytree(twin[1], swapped)
+    (swapped / "led_04.png").rename(swapped / "x.png")
+    (swapped / "led_05.png").rename(swapped / "led_04.png")
+    (swapped / "x.png").rename(swapped / "led_05.png")
+    recorded_anew(swapped)
+    press = load_press(swapped)
+    line = tricolor_note(press, _gel_samples(press), _names(press))
+    assert line is not None and line.startswith(f"{swapped}: tricolor.png does not hold the light"), line
+    assert "with led_04.png (red group) and led_05.png (green) exchanged it fits" in line and "\n" not in line
+    # a frame of another press (the undeformed dome's): off in and around the contact
+    shutil.copy(twin[0] / "tricolor.png", swapped / "tricolor.png")
+    for name in ("led_04.png", "led_05.png"):
+        shutil.copy(twin[1] / name, swapped / name)
+    recorded_anew(swapped)
+    other = load_press(swapped)
+    line = tricolor_note(other, _gel_samples(other), _names(other))
+    assert line is not None and "a tri-colour frame of another press" in line, line
+    # an LED subset (the groups of its images are not the frame's): not judged
+    assert tricolor_note(load_press(swapped, led_subset=range(11)), _gel_samples(other), _names(other)) is None
+    # a truncated frame: the solve does not need it, so the reader's line, no refusal
+    (swapped / "tricolor.png").write_bytes((twin[1] / "tricolor.png").read_bytes()[:3000])
+    recorded_anew(swapped)
+    cut = load_press(swapped)
+    line = tricolor_note(cut, _gel_samples(cut), _names(cut))
+    assert line.startswith(f"{swapped / 'tricolor.png'}: truncated PNG") and "not compared" in line, line
+    # already named as exchanged by the LED model's check: said once, there
+    assert tricolor_note(press, _gel_samples(press), _names(press), said={3, 4}) is None
