@@ -90,13 +90,20 @@ def config_key(cfg: TrainConfig) -> str:
     return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
 
 
+OMITTED_OPTIONS = {"colour_input": "linear", "weight_decay": 0.0, "synthetic_share": 0.0}
+"""What an option :func:`jsonable_config` leaves out means: a checkpoint's options without it were of this value."""
+
+
 def _options_changed(recorded: object, cfg: TrainConfig) -> str:
     """'name old -> new, ...' of the trajectory options a checkpoint recorded and ``cfg`` differ in ("" when the
-    checkpoint records none: written before 2026-12-04)."""
+    checkpoint records none: written before 2026-12-04). An option left out on either side (:data:`OMITTED_OPTIONS`)
+    is named by the value it meant: a linear checkpoint under the ratio default said "colour_input None -> 'ratio'",
+    and a linear run over a ratio checkpoint "()" (the option absent from this run's record)."""
     if not isinstance(recorded, dict):
         return ""
-    now = _trajectory_options(cfg)
-    return ", ".join(f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in now.items() if recorded.get(k) != v)
+    old, now = ({**OMITTED_OPTIONS, **options} for options in (recorded, _trajectory_options(cfg)))
+    names = [k for k in now if k in old] + [k for k in now if k not in old]  # this run's order; one side's last
+    return ", ".join(f"{k} {old.get(k)!r} -> {now[k]!r}" for k in names if old.get(k) != now[k])
 
 
 def data_key_of(*arrays: np.ndarray) -> str:

@@ -302,6 +302,7 @@ class Predictor:
             )
         if self._full is not None:  # the gain (:meth:`refresh`) is applied on the device
             return self._whole_frame(tricolor, stored=False)
+        captured = tricolor  # as the camera gave it: what is clipped there (:meth:`_exposure`)
         if self.gain is not None:  # an aged sensor's frame, in the calibration's light (:meth:`refresh`)
             tricolor = tricolor * self.gain
         t0 = time.perf_counter()
@@ -326,7 +327,7 @@ class Predictor:
         frame = Frame(normals, depth, points, changed, {}, mismatch=self.changed.mismatch)
         frame.channels = tuple(float(r) for r in self.changed.channel_ratio)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:  # only then: what the warning can say about it
-            frame.brightness, frame.saturated = self._exposure(tricolor)
+            frame.brightness, frame.saturated = self._exposure(captured, self.gain)
         t4 = time.perf_counter()
         # "check": the exposure of a frame unlike the calibration's (~20 ms of a 640x480 frame) is part of the
         # frame's time; outside the stages, a stream's stage line said 155 frames/s for 11.6 (s24 live walk)
@@ -334,15 +335,19 @@ class Predictor:
         frame.seconds["total"] = t4 - t0
         return frame
 
-    def _exposure(self, tricolor: np.ndarray) -> tuple[float, float]:
-        """(brightness, saturated) of a linear frame (:class:`Frame`): its median brightness on the gel over the
-        reference frame's (1: as bright; 0 when no brighter than the calibration's dark frame, never negative), and
-        the share of the gel's pixels with a channel clipped (stored at the white level, or at
-        :data:`~nlipscalib.core.sensor_response.CLIPPED_VALUE`)."""
+    def _exposure(self, tricolor: np.ndarray, gain: np.ndarray | None = None) -> tuple[float, float]:
+        """(brightness, saturated) of a linear frame as captured (:class:`Frame`): its median brightness on the gel
+        over the reference frame's (1: as bright; 0 when no brighter than the calibration's dark frame, never
+        negative), with ``gain`` ((H, W, 3) float32, :meth:`refresh`'s) in the calibration's light, and the share of
+        the gel's pixels with a channel clipped (stored at the white level, or at
+        :data:`~nlipscalib.core.sensor_response.CLIPPED_VALUE`) as captured: judged after the gain, a refresh's
+        brightening named unclipped pixels "saturated (at the white level)" and its dimming hid clipped ones."""
         gel = tricolor[self.valid]
         level, clipped = self._exposure_levels
-        brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
         saturated = float((gel >= clipped).any(-1).mean()) if len(gel) else 0.0
+        if gain is not None:
+            gel = gel * gain[self.valid]
+        brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
         return brightness, saturated
 
     @functools.cached_property
@@ -392,7 +397,7 @@ class Predictor:
         t0 = time.perf_counter()
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
             linear = self._linearise(tricolor) if stored else tricolor  # stored: its tone curve already undone
-            frame.brightness, frame.saturated = self._exposure(linear if self.gain is None else linear * self.gain)
+            frame.brightness, frame.saturated = self._exposure(linear, self.gain)
         check = time.perf_counter() - t0
         frame.seconds = {**{k: v for k, v in seconds.items() if k != "total"}, "check": check}
         frame.seconds["total"] = seconds["total"] + check

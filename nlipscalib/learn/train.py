@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.config import OMIT_AT
+from ..core.config import OMIT_AT, did_you_mean
 from ..core.errors import PATH, ConfigError, check_kind
 from .checkpoint import (
     check_sampling_record,
@@ -72,6 +72,8 @@ MAX_WEIGHT_DECAY = 1.0
 MAX_SYNTHETIC_SHARE = 4.0
 """Largest :attr:`TrainConfig.synthetic_share`: four synthetic samples per real one already let the model's light
 outweigh what the presses show."""
+SCHEDULES = ("plateau", "cosine")
+"""The learning-rate schedules (:attr:`TrainConfig.schedule`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -194,9 +196,15 @@ class TrainConfig:
         if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 <= decay <= MAX_WEIGHT_DECAY):
             raise ConfigError(f"weight_decay must be in [0, {MAX_WEIGHT_DECAY:g}] (0: none), got {decay!r}")
         if self.colour_input not in COLOUR_INPUTS:
-            raise ConfigError(f"colour_input must be one of {', '.join(COLOUR_INPUTS)}, got {self.colour_input!r}")
-        if self.schedule not in ("plateau", "cosine"):
-            raise ConfigError(f"schedule must be 'plateau' or 'cosine', got {self.schedule!r}")
+            raise ConfigError(
+                f"colour_input must be one of {', '.join(COLOUR_INPUTS)}, got {self.colour_input!r}"
+                + did_you_mean(str(self.colour_input), COLOUR_INPUTS)
+            )
+        if self.schedule not in SCHEDULES:
+            raise ConfigError(
+                f"schedule must be 'plateau' or 'cosine', got {self.schedule!r}"
+                + did_you_mean(str(self.schedule), SCHEDULES)
+            )
         if self.lr_patience < 0 or not 0 < self.lr_factor < 1:
             raise ConfigError(
                 f"lr_patience must be >= 0 and lr_factor in (0, 1), got {self.lr_patience}, {self.lr_factor}"

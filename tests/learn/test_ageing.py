@@ -171,3 +171,28 @@ def test_many_drifted_stills_are_counted_as_drifted_not_as_unlike_the_reference(
     assert main(["infer", str(trained), *(str(tmp_path / "aged" / n) for n in names), "--figures", "none"]) == 0
     assert "4 of 4 inputs had colours that drifted from the calibration's reference" in caplog.text
     assert "over most of the gel" not in caplog.text
+
+
+@pytest.mark.parametrize("full_frame", [False, True])
+def test_a_refreshed_frame_is_judged_saturated_as_captured_not_after_the_gain(trained, twin_presses, full_frame):
+    """Walk s37-learnwalk: a frame unlike a wrong --reference (all colours 0.85, the frame's red alone dimmed) was
+    warned "14 % of the gel is saturated (at the white level)": the clipping was judged after the refresh's gain,
+    where no pixel the camera gave was clipped; and a clipped frame under a dimming gain was not called saturated."""
+    predictor = Predictor(trained, full_frame=full_frame)
+    press, reference = (
+        predictor.linear(read_png16(twin_presses / name / "tricolor.png")) for name in (HELD_OUT, "reference")
+    )
+    _, clipped = predictor._exposure_levels
+    gel = press[predictor.valid]
+    assert not (gel >= clipped).any()  # the press as captured: nothing clipped
+    share_brighter = float((gel * 2 >= clipped).any(-1).mean())
+    assert share_brighter > 0.05  # where a gain of 2 would lift it to the white level
+    predictor.refresh(reference * np.float32(0.5))  # a reference twice as dark as the calibration's: gain 2
+    brightened = predictor.predict(press)
+    assert brightened.mismatch > 0.5 and brightened.brightness == pytest.approx(2.0, rel=0.05)
+    assert brightened.saturated == 0.0
+    why = mismatch_warning(brightened, "p")
+    assert why is not None and "saturated" not in why and "2 times as bright" in why
+    predictor.refresh(reference * np.float32(2.0))  # gain 1/2 over a frame clipped in part
+    burnt = np.where(predictor.valid[..., None], np.maximum(press, clipped.max()), press).astype(np.float32)
+    assert predictor.predict(burnt).saturated == 1.0

@@ -595,3 +595,18 @@ def test_cli_train_colour_input_is_checked_in_one_line_and_recorded(calib, tmp_p
     linear = tmp_path / "linear.pt"
     assert main(["train", str(calib.folder), "--out", str(linear), "--colour-input", "linear", *args]) == 0
     assert load_model(linear).colour_input == "linear" and "colour_input" not in torch.load(linear, weights_only=True)
+
+
+def test_a_mistyped_colour_input_or_schedule_names_the_close_choice(tmp_path, capsys):
+    """`nlips train --colour-input ration` listed the choices and left the user to spot the one meant, where a
+    mistyped --labels or --backend named it (README: "a mistyped command, option or choice names the close match")."""
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.learn.train import TrainConfig
+
+    with pytest.raises(ConfigError, match=r"got 'ration' \(did you mean 'ratio'\?\)"):
+        TrainConfig(colour_input="ration")
+    with pytest.raises(ConfigError, match=r"got 'cosin' \(did you mean 'cosine'\?\)"):
+        TrainConfig(schedule="cosin")
+    assert main(["train", str(tmp_path), "--out", str(tmp_path / "m.pt"), "--colour-input", "linar"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith("--colour-input must be one of linear, ratio, got 'linar' (did you mean 'linear'?)")

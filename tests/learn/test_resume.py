@@ -906,3 +906,17 @@ def test_a_folder_given_for_the_model_file_is_refused_before_training(tmp_path):
         train(tmp_path / "no dataset here", TINY, tmp_path, progress=False)  # refused before the dataset is read
     assert raised.value.errno == errno.EISDIR and raised.value.filename == str(tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_options_a_checkpoint_left_out_are_named_by_what_they_meant():
+    """A linear model's checkpoint under the ratio default said "colour_input None -> 'ratio'", and a linear run
+    over a ratio checkpoint "made with other training options ()": an option left out of the record (at the value
+    records made before it existed meant) is named by that value, on either side."""
+    from nlipscalib.learn.checkpoint import _options_changed, _trajectory_options
+
+    linear, ratio = TrainConfig(colour_input="linear"), TrainConfig(colour_input="ratio")
+    assert _options_changed(_trajectory_options(linear), ratio) == "colour_input 'linear' -> 'ratio'"
+    assert _options_changed(_trajectory_options(ratio), linear) == "colour_input 'ratio' -> 'linear'"
+    no_decay = dataclasses.replace(ratio, weight_decay=0.0)
+    assert _options_changed(_trajectory_options(no_decay), ratio) == "weight_decay 0.0 -> 0.2"
+    assert _options_changed(_trajectory_options(ratio), ratio) == ""

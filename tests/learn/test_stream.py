@@ -280,9 +280,9 @@ def test_the_stage_line_accounts_for_every_step_of_a_frame(trained, twin_presses
     _video(dim, [_eight_bit((read_png16(twin_presses / n / "tricolor.png") * 0.5).astype(np.uint16)) for n in FRAMES])
     exposure = infer.Predictor._exposure
 
-    def slow_exposure(self, tricolor):
+    def slow_exposure(self, tricolor, gain=None):
         clock.sleep(0.03)
-        return exposure(self, tricolor)
+        return exposure(self, tricolor, gain)
 
     monkeypatch.setattr(infer.Predictor, "_exposure", slow_exposure)
     out = tmp_path / "out"
