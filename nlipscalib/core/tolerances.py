@@ -963,3 +963,9 @@ response and the tri-colour exposure) misfits by more than this share of the cha
 (the images' noise); two images of LEDs of different groups exchanged: 0.044 (the shipped ring's LEDs 4 and 5) and
 0.073 (LEDs designed in pairs); the LEDs' pair whose groups exchanged fits back to 0.015 (benchmarks/RESULTS.md,
 s37-swapcheck)."""
+TRICOLOR_GROUPS_APART = 0.02
+"""The tri-colour frame is judged only where the LED groups' summed images tell the groups apart: in every channel
+the smallest over the largest singular value of the three groups' sums at the gel samples (each scaled to unit
+norm) at least this. The twin's dome: 0.18-0.24 (80x60 to 640x480, pressed or not); frames lit evenly (a flat target,
+the capture tests' grey frames): 0, any gains fit them, and a verdict there named colours it could not tell
+(:func:`nlipscalib.core.tricolor_check.tricolor_note`; s37-tricap)."""

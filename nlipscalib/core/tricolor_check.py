@@ -7,22 +7,33 @@ exposure over the LED images', the camera's response to that LED colour): the tw
 (``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise (1.5 %). Two LED images of
 different groups captured in each other's place break that sum, and exchanging the two back in it mends it: that
 names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In core beside the
-capture (device/ may use it); the solve wires it (:mod:`nlipscalib.solver.led_checks`).
+capture: the solve wires it (:mod:`nlipscalib.solver.led_checks`), ``nlips capture`` runs it on each press as it is
+captured (:func:`captured_tricolor_note`, from ``device.session``) and ``nlips calibrate-leds`` on its undeformed
+captures (``solver.calibrate``), where a swapped pair would spoil every LED's calibration.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from . import tolerances
+from .camera import Camera
 from .capture import Press
 from .errors import CaptureError
-from .leds import TRICOLOR_NAMES, tricolor_groups
-from .sensor_response import linearise
+from .leds import TRICOLOR_NAMES, Led, tricolor_groups
+from .press_meta import led_image_name
+from .sensor_response import SensorResponse, linearise, undo_tone_curve
+from .surface_files import Reference
+
+GEL_SAMPLES = 2000
+"""Gel pixels the check samples, at least (every k-th in raster order), as the solve's LED check
+(``solver.led_checks.CHECK_PIXELS``: the same samples, so the same verdict at capture and at the solve)."""
 
 
 class TricolorFit(NamedTuple):
@@ -121,8 +132,9 @@ def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.n
 def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> str | None:
     """One warning line naming the press (and the two LED images exchanged, when their exchange mends it) when its
     tri-colour frame does not hold its LED images' light (:func:`tricolor_fit` at the gel samples ``pixels``); None
-    when it does, or cannot be judged (fewer than 3 LEDs, an LED subset, too few unsaturated samples); the reader's
-    line when the frame cannot be read (a truncated file).
+    when it does, or cannot be judged (fewer than 3 LEDs, an LED subset, too few unsaturated samples, LED groups
+    whose images do not tell them apart: :func:`groups_apart`); the reader's line when the frame cannot be read (a
+    truncated file).
 
     ``names``: the LED images' file names, LED ``i`` at ``i``; ``said``: LEDs (0-based) already named as showing
     other LEDs' light (no line when the exchange found is theirs)."""
@@ -140,6 +152,8 @@ def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Coll
     if samples is None:
         return None
     groups = tricolor_groups(count)
+    if not groups_apart(samples[1], groups):
+        return None
     fit = tricolor_fit(*samples, groups)
     tri = (press.meta.get("images") or {}).get("tricolor", "the tri-colour frame")
     if fit.sources != (0, 1, 2):  # the gains take any colours: a frame lit in others fits as well
@@ -175,6 +189,75 @@ def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Coll
         f"exchanged it fits ({100 * fit.exchanged_misfit:.1f} %): the two images were captured in each other's place "
         "(the LED wiring, the controller's LED order or the images' order): check them"
     )
+
+
+def groups_apart(images: np.ndarray, groups: np.ndarray) -> bool:
+    """Whether the LED groups' summed images ((L, N, 3) ``images`` by ``groups``, as :func:`channel_fit`'s) tell the
+    groups apart in every channel (:data:`~nlipscalib.core.tolerances.TRICOLOR_GROUPS_APART`): where they do not
+    (frames lit evenly) any gains fit the frame and its colours cannot be told."""
+    summed = np.stack([images[groups == g].sum(0) for g in range(3)], axis=1)  # (N, 3 groups, 3 channels)
+    for c in range(3):
+        norms = np.linalg.norm(summed[:, :, c], axis=0)
+        if not np.all(norms > 0):
+            return False
+        values = np.linalg.svd(summed[:, :, c] / norms, compute_uv=False)
+        if not values[-1] >= tolerances.TRICOLOR_GROUPS_APART * values[0]:
+            return False
+    return True
+
+
+def gel_samples(reference: Reference | None, shape: tuple[int, int]) -> np.ndarray:
+    """(N,) int: every k-th gel pixel (flat, row-major) of ``reference`` (the whole ``shape`` (H, W) frame when None),
+    at least :data:`GEL_SAMPLES` of them."""
+    gel = np.ones(shape, bool) if reference is None else np.isfinite(reference.depth)
+    index = np.flatnonzero(gel)
+    return index[:: max(1, index.size // GEL_SAMPLES)]
+
+
+def press_tricolor_note(press: Press, said: Collection[int] = ()) -> str | None:
+    """:func:`tricolor_note` of ``press`` at its :func:`gel_samples`, its LED images named as its meta.json names
+    them (``nlips calibrate-leds``' check of its undeformed captures)."""
+    listed = (press.meta.get("images") or {}).get("leds")
+    names = list(listed) if isinstance(listed, list) else [led_image_name(i) for i in range(len(press.leds))]
+    return tricolor_note(press, gel_samples(press.reference, press.camera.shape), names, said)
+
+
+def captured_tricolor_note(
+    folder: str | Path,
+    frames: dict[str, np.ndarray],
+    camera: Camera,
+    leds: Sequence[Led],
+    response: SensorResponse,
+    reference: Reference | None,
+) -> str | None:
+    """:func:`tricolor_note` of a press just captured, from its frames in memory (nothing decoded), for
+    ``nlips capture`` to say at once, before more presses are taken with the LEDs wired wrong.
+
+    Parameters
+    ----------
+    folder : the press folder the frames are written to (for the message).
+    frames : name -> (H, W, 3) uint16 stored frame as the camera encoded it: ``dark``, ``tricolor``, ``led_01`` ...
+        (``device.session.capture_frames``; a declared tone curve, ``response.tone_curve()``, is undone on copies).
+    camera, leds, response, reference : the session's (``device.session.Rig``).
+    """
+    names = [led_image_name(i) for i in range(len(leds))]
+    stored = {"dark": frames["dark"], "tricolor": frames["tricolor"]}
+    stored["leds"] = np.stack([frames[name.removesuffix(".png")] for name in names])
+    if (curve := response.tone_curve()) is not None:  # judged in the light, as the solve reads the written press
+        stored = {key: undo_tone_curve(frame.copy(), curve) for key, frame in stored.items()}
+        response = dataclasses.replace(response, camera_response="linear", response_curve=None)
+    press = Press(
+        folder=Path(folder),
+        camera=camera,
+        leds=tuple(leds),
+        response=response,
+        dark=stored["dark"],
+        led_images=stored["leds"],
+        tricolor=stored["tricolor"],
+        meta={"images": {"dark": "dark.png", "leds": names, "tricolor": "tricolor.png"}},
+        reference=reference,
+    )
+    return tricolor_note(press, gel_samples(reference, camera.shape), names)
 
 
 def _groups_said(groups: np.ndarray) -> str:

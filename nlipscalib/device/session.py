@@ -43,6 +43,7 @@ from ..core.sensor_record import setting_differences
 from ..core.sensor_response import SensorResponse, linearise
 from ..core.surface_files import Reference
 from ..core.tolerances import CAPTURE_CHECK_BLUR
+from ..core.tricolor_check import captured_tricolor_note
 from .controller import FIRMWARE_GUIDE
 
 log = logging.getLogger(__name__)
@@ -265,7 +266,9 @@ def capture_press(
 
     Exposure (:func:`nlipscalib.device.exposure.check_exposure`): black LED frames and a large saturated share
     are warned about (log lines naming the files); a reference (``index`` 0) with nothing usable, wholly black
-    or saturated, raises CaptureError and is not written.
+    or saturated, raises CaptureError and is not written. A tri-colour frame that does not hold the LED frames'
+    light (two LEDs of different colour groups wired in each other's place:
+    :func:`nlipscalib.core.tricolor_check.captured_tricolor_note`) is one warning naming the press and the LEDs.
 
     Returns
     -------
@@ -317,7 +320,9 @@ def capture_press(
     checked = check_exposure(
         frames, rig.response, folder, gel, reference=index == 0, expected=expected, response_slope=rig.response_slope
     )
-    for line in checked:
+    # the LED wiring across the tri-colour groups, said before more presses are taken with it (~ms: frames in memory)
+    crossed = captured_tricolor_note(folder, frames, rig.camera, rig.leds, rig.response, rig.reference)
+    for line in [*checked, *([crossed] if crossed else [])]:
         log.warning("%s", line)
     leds = np.stack([frames[led_frame_name(i)] for i in range(len(rig.leds))])
     write_press(

@@ -40,6 +40,7 @@ from ..core.compression import blockiness_line, compressed
 from ..core.errors import NUMBER, CaptureError, ConfigError, check_kind
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import dark_everywhere_line, dark_line, frame_checks
+from ..core.tricolor_check import press_tricolor_note
 from .calibration_bands import (
     NOTHING_TO_FIT,
     dark_notes,
@@ -253,10 +254,13 @@ def calibrate_leds(
         raise CaptureError(ran_off_line(presses, error.led, settings.initial)) from None
     _check_finite(cal, presses[0].folder)
     # two neighbours' images exchanged: fitted each where its image shows it, unseen by the images' own check
-    exchange_notes = _exchanged_images(presses, cal.leds, initial, held, reorder_leds)
+    exchange_notes, exchanged = _exchanged_images(presses, cal.leds, initial, held, reorder_leds)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = order_notes + exchange_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
     notes += [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    # the tri-colour frame against the LED images (a pair of two colour groups exchanged spoils every LED's fit):
+    # not said again of LEDs the exchange check above names
+    notes += [n for p in presses if (n := press_tricolor_note(p, exchanged))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
     if note := unprofiled_note(cal.interreflection, interreflection, led_radius, coating_reflectance):
@@ -337,11 +341,12 @@ EXCHANGE_KEPT = (
 
 def _exchanged_images(
     presses: Sequence[Press], leds: Leds, initial: Leds | None, held: Sequence[int], reorder: bool
-) -> list[str]:
+) -> tuple[list[str], set[int]]:
     """The warning (``reorder`` False: ``--keep-led-order``) naming LED images captured in each other's place, told by
     the fitted ``leds`` against the design's (``initial``, else the capture's meta.json LEDs:
-    :func:`nlipscalib.core.led_exchange.place_exchanges`; ``held``: LEDs not fitted); [] when none. CaptureError with
-    that line when ``reorder`` (the default): :data:`EXCHANGE_REFUSED` says why."""
+    :func:`nlipscalib.core.led_exchange.place_exchanges`; ``held``: LEDs not fitted); [] when none; and the LEDs
+    (0-based) it names. CaptureError with that line when ``reorder`` (the default): :data:`EXCHANGE_REFUSED` says
+    why."""
     from ..core.led_exchange import place_exchanges
     from ..core.leds import led_arrays
 
@@ -349,7 +354,7 @@ def _exchanged_images(
     found = place_exchanges(design, led_arrays(leds)[0], tuple(held))
     notes = [_doubtful_line(presses, found, design)] if found.doubtful else []
     if not found.cycles:
-        return notes
+        return notes, set()
     folders = ", ".join(str(p.folder) for p in presses)
     parts = [f"{_said(presses[0], cycle)} look exchanged ({_where(found, design, cycle)})" for cycle in found.cycles]
     line = (
@@ -358,7 +363,7 @@ def _exchanged_images(
     )
     if reorder:
         raise CaptureError(line + EXCHANGE_REFUSED)
-    return [line + EXCHANGE_KEPT, *notes]
+    return [line + EXCHANGE_KEPT, *notes], {int(i) for cycle in found.cycles for i in cycle}
 
 
 def _said(press: Press, cycle: Sequence[int]) -> str:

@@ -9,7 +9,7 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.core.leds import tricolor_groups
-from nlipscalib.core.tricolor_check import channel_misfits, tricolor_fit, tricolor_note
+from nlipscalib.core.tricolor_check import channel_misfits, groups_apart, tricolor_fit, tricolor_note
 from tests.solver.twin_helpers import recorded_anew
 
 
@@ -36,6 +36,15 @@ def test_images_of_two_groups_exchanged_are_named_and_their_own_order_fits():
     assert bgr.sources == (2, 1, 0)
     within = images[[1, 0, *range(2, 12)]]  # a group's own two: its sum unchanged, nothing to tell
     assert tricolor_fit(tri, within, groups).exchanged is None
+
+
+def test_groups_whose_images_look_alike_are_not_judged():
+    """Frames lit evenly (the capture tests' grey frames, a flat target): every group's sum is the same shape, any
+    gains fit, and the check named the frame's colours wrong at capture (s37-tricap); the dome's images tell them."""
+    _, images, groups = _synthetic(np.random.default_rng(0))
+    assert groups_apart(images, groups)
+    flat = np.full_like(images, 0.3) * (1 + 0.001 * np.random.default_rng(1).standard_normal(images.shape))
+    assert not groups_apart(flat, groups)
 
 
 @pytest.fixture(scope="module")
