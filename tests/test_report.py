@@ -938,3 +938,41 @@ def test_a_narrow_sheets_title_and_caption_are_wrapped_inside_it():
     headings = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_title()]
     assert texts[title].get_window_extent(renderer).y0 >= max(b.y1 for b in images + headings)  # over the panels
     assert texts[NORMALS_KEY].get_window_extent(renderer).y1 <= min(b.y0 for b in images)  # under them
+
+
+@pytest.mark.parametrize("cells", [1, 2, 4])
+def test_the_coverage_header_fits_any_grid_over_its_plots(tmp_path, monkeypatch, cells):
+    """`nlips calibrate` draws 4 x 4 regions; ``learn.coverage(cells=2)``'s 5.4-in figure cut its header's three long
+    lines (where to press next, the steep-normals advice, how to read a plot) at both edges."""
+    from nlipscalib.report import learn
+    from nlipscalib.report.figures import MIN_TEXT_PX
+
+    figures = _kept_figures(monkeypatch, learn)
+    cov = _down_tilt_coverage(cells=cells)
+    cov["next_press"].update(polar_deg=12.3, azimuth_deg=-135.0)
+    cov["steep"] = {"taught_tilt_deg": 31.0, "untaught_from_deg": 38.0}
+    learn.coverage_figure(cov, tmp_path / "cov.png")
+    fig = figures[0]
+    assert _smallest_text_px(fig, learn.DPI) >= MIN_TEXT_PX  # every text inside the figure
+    renderer = fig.canvas.get_renderer()
+    header = fig._suptitle.get_window_extent(renderer)
+    assert "steep relief" in fig._suptitle.get_text()
+    assert header.y0 >= max(ax.title.get_window_extent(renderer).y1 for ax in fig.axes if ax.get_title())
+    bar = fig.axes[-1].get_window_extent(renderer)
+    assert bar.y1 <= header.y0  # the colour bar beside the plots, not the header
+
+
+def test_the_training_curves_aae_axis_starts_at_zero_as_every_aae_chart(tmp_path, monkeypatch):
+    """From the curve's own low (3.6 deg) the late epochs' 0.1-deg gains filled the axis; the experiment charts'
+    AAE axes start at 0."""
+    from nlipscalib.report import learn
+
+    figures = _kept_figures(monkeypatch, learn)
+    history = [
+        {"epoch": e, "train_loss": 0.1 / (e + 1), "val_aae_deg": 4.0 + 6 / (e + 1), "val_contact_aae_deg": 5.0}
+        for e in range(12)
+    ]
+    learn.training_curve(history, tmp_path / "curve.png")
+    bottom, top = figures[0].axes[1].get_ylim()
+    assert bottom == 0.0
+    assert 10.0 < top <= 10.0 * 1.1  # the first epoch's 10 deg drawn whole, a little below the frame

@@ -12,6 +12,7 @@ from ..core.atomic import write_bytes
 from .figures import (
     NORMALS_KEY,
     Panel,
+    axis_from_zero,
     contact_sheet,
     display_image,
     error_panel,
@@ -150,25 +151,9 @@ def sweep(
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=TITLE_PT)
-    _from_zero(ax)
+    axis_from_zero(ax)
     _legend_outside(fig, ax)
     return _save(fig, path)
-
-
-SWEEP_HEADROOM = 0.06
-"""Room above a sweep's highest point or error bar, as a share of the axis from 0."""
-
-
-def _from_zero(ax: Axes) -> None:
-    """The y axis from 0 to a little above the highest point drawn (error bars and paper markers included).
-
-    Why: ``set_ylim(bottom=0)`` kept matplotlib's top, whose margin is 5 % of the data's own range: on points that
-    barely differ (quick studies: noise 1.13 and 1.11 deg) the highest marker sat on the frame, cut in half."""
-    top = float(ax.dataLim.y1)
-    if np.isfinite(top) and top > 0:
-        ax.set_ylim(0, top * (1 + SWEEP_HEADROOM))
-    else:
-        ax.set_ylim(bottom=0)
 
 
 def error_maps(

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .figures import new_figure, save_png
+from .figures import axis_from_zero, new_figure, save_png, wrap_text
 
 if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
     from matplotlib.figure import Figure
@@ -49,7 +49,9 @@ def coverage_figure(cov: dict, path: str | Path) -> Path:
     theta = np.linspace(-np.pi, np.pi, sectors * THETA_SUBSTEPS + 1)
     nxt = tuple(cov["next_press"]["region"])
     norm = Normalize(0, np.log1p(max(int(counts.max()), 1)))
-    fig = new_figure(figsize=(2.2 * cells + 1.0, 2.2 * cells + 1.2))
+    header = _coverage_header(cov, width_in=2.2 * cells + 1.0 - COLOUR_BAR_IN)
+    header_in = (header.count("\n") + 1) * HEADER_PT * HEADER_LINE_SPACING / 72 + HEADER_PAD_IN
+    fig = new_figure(figsize=(2.2 * cells + 1.0, 2.2 * cells + header_in))
     keyed = False
     for r in range(cells):
         for c in range(cells):
@@ -71,27 +73,51 @@ def coverage_figure(cov: dict, path: str | Path) -> Path:
             if (r, c) == nxt:
                 ax.spines["polar"].set_color("red")
                 ax.spines["polar"].set_linewidth(2)
-    fig.suptitle(
-        f"normal-direction coverage per image region ({cov['covered_fraction'] * 100:.0f}% of bins)\n"
-        f"press next (red): {cov['next_press']['indenter']} at u~{cov['next_press']['centre_uv'][0]:.0f}, "
-        f"v~{cov['next_press']['centre_uv'][1]:.0f}"
-        + _press_direction(cov["next_press"])
-        + _steep_line(cov.get("steep"))
-        + "\n"
-        "each plot: tilt direction as in the image (right = +u, down = +v), radius = tilt from the undeformed normal\n"
-        f"(rings {'/'.join(f'{t:g}' for t in cov['tilt_edges_deg'])}°, outer ring drawn to 60°); "
-        f"title = share of its direction bins with ≥ {cov['min_samples']} samples",
-        fontsize=8,
-    )
-    fig.tight_layout(rect=(0, 0, 1 - 0.9 / fig.get_figwidth(), 1))
-    bar = fig.colorbar(
-        ScalarMappable(norm, "viridis"), cax=fig.add_axes((1 - 0.75 / fig.get_figwidth(), 0.15, 0.015, 0.6))
-    )
+    fig.suptitle(header, fontsize=HEADER_PT)
+    fig.tight_layout(rect=(0, 0, 1 - COLOUR_BAR_IN / fig.get_figwidth(), 1))
+    # beside the plots, not the header: a 1 x 1 figure's header fills a third of its height
+    plots = [ax.get_position() for ax in fig.axes]
+    low, high = min(b.y0 for b in plots), max(b.y1 for b in plots)
+    left = 1 - 0.75 / fig.get_figwidth()
+    bar_box = (left, low + 0.15 * (high - low), 0.015, 0.7 * (high - low))
+    bar = fig.colorbar(ScalarMappable(norm, "viridis"), cax=fig.add_axes(bar_box))
     ticks = [n for n in (0, 1, 10, 100, 1000, 10000, 100000) if np.log1p(n) <= norm.vmax]
     bar.set_ticks(np.log1p(ticks), labels=[str(n) for n in ticks])
     bar.ax.tick_params(labelsize=7)
     bar.set_label("samples per bin (log scale)", fontsize=8)
     return _save(fig, path)
+
+
+HEADER_PT = 8
+"""Font size of the coverage figure's header, points (12.2 px tall at :data:`DPI`)."""
+HEADER_LINE_SPACING = 1.2
+"""Height of a header line as a share of its font size (matplotlib's default ``linespacing``)."""
+HEADER_PAD_IN = 0.5
+"""Room around the header, inches: above it and between it and the first row's titles."""
+COLOUR_BAR_IN = 0.9
+"""Width right of the plots kept for the colour bar and its label, inches."""
+
+
+def _coverage_header(cov: dict, width_in: float) -> str:
+    """The coverage figure's header (coverage, where to press next, how to read a plot), each line wrapped to
+    ``width_in`` inches: a 2 x 2 grid's 5.4-in figure cut its three long lines at both edges.
+
+    Parameters
+    ----------
+    cov : the dict of ``nlipscalib.learn.coverage.coverage``
+    width_in : the room, inches
+    """
+    nxt = cov["next_press"]
+    lines = [
+        f"normal-direction coverage per image region ({cov['covered_fraction'] * 100:.0f}% of bins)",
+        f"press next (red): {nxt['indenter']} at u~{nxt['centre_uv'][0]:.0f}, v~{nxt['centre_uv'][1]:.0f}"
+        + _press_direction(nxt),
+        *_steep_line(cov.get("steep")).splitlines()[1:],
+        "each plot: tilt direction as in the image (right = +u, down = +v), radius = tilt from the undeformed normal",
+        f"(rings {'/'.join(f'{t:g}' for t in cov['tilt_edges_deg'])}°, outer ring drawn to 60°); "
+        f"title = share of its direction bins with ≥ {cov['min_samples']} samples",
+    ]
+    return "\n".join(wrap_text(line, HEADER_PT, width_in) for line in lines)
 
 
 def image_polar_axes(ax: PolarAxes) -> None:
@@ -141,6 +167,8 @@ def training_curve(
     a1.set_ylabel(r"training loss, mean $1 - \hat{n} \cdot n$")
     a2.plot(ep, [h["val_aae_deg"] for h in history], label="validation, all samples")
     a2.plot(ep, [h["val_contact_aae_deg"] for h in history], label="validation, contact")
+    # from 0 as every AAE axis of report/: from the curve's own low the late epochs' 0.1 deg filled the axis
+    axis_from_zero(a2)
     best = min(history, key=lambda h: h["val_aae_deg"])
     a2.axvline(best["epoch"] + 1, color="0.5", ls="--", lw=1)
     a2.set_xlabel("epoch")
