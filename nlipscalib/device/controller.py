@@ -320,12 +320,18 @@ class LedController:
                 self._shown[:] = self._staged
             return reply
 
-    def _exchange(self, command: str, *args, session: bool = True) -> p.Reply:
-        """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug."""
+    def _exchange(self, command: str, *args, session: bool = True, again: bool = False) -> p.Reply:
+        """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug.
+
+        A reset that ends the last try is said as the reset it is (BoardResetError, or with ``on_reset="restore"``
+        the command sent once more, ``again``, on the new session), never as "no valid answer".
+        """
         self._seq = seq = (self._seq + 1) & 0xFF
         failures_before = self._checksum_failures
         line = p.encode_command(seq, command, *args)
+        ended_by_reset = False
         for attempt in range(self.retries + 1):
+            ended_by_reset = False
             # a boot banner ended the last try: the reset is said below, not as a lost reply
             if attempt and not (session and self._reset_seen):
                 self.resends += 1
@@ -346,15 +352,24 @@ class LedController:
                     raise DeviceDisconnectedError(f"{self.url}: the port failed during HELLO: {exc}") from None
                 self._reconnect(exc)
                 self._after_reset(UNPLUGGED_REASON)
+                ended_by_reset = True
                 continue
             if reply is None or reply.seq == p.UNKNOWN_SEQ or reply.error == p.E_CRC:
                 continue
             if reply.error == p.E_NOSESSION and session:
                 self._after_reset("it no longer knows the session")
+                ended_by_reset = True
                 continue
             if reply.error:
                 raise self._board_error(command, args, reply)
             return reply
+        if session and self._reset_seen:
+            # its boot banner came as the last try waited: a reset, not a lost reply (it said "no valid answer to
+            # SET after 3 tries", where a banner one try earlier said "board reset detected"; s37)
+            self._after_reset("it printed its boot banner")  # raises unless on_reset="restore"
+            ended_by_reset = True
+        if ended_by_reset and not again:  # on_reset="restore": the LEDs are back; the command has not been obeyed
+            return self._exchange(command, *args, again=True)
         tries = self.retries + 1
         corrupt = self._checksum_failures - failures_before
         if corrupt >= tries:  # each answered by a resend at once: the tries did not last the timeout
