@@ -284,6 +284,25 @@ class LedController:
                 raise DeviceError(f"{self.url}: the LED controller is closed")
             return self._hello()
 
+    def check_reset(self) -> None:
+        """Read what the board sent since the last command, sending nothing; a boot banner there (or a port that
+        failed and came back) is handled as a command handles it: the LEDs restored, then BoardResetError unless
+        ``on_reset="restore"``. Cheap (the bytes waiting, none usually): a stream asks it at every frame.
+
+        Why: a stream that lights the LEDs once (``nlips live``) sends no command while it runs, so a board that
+        reset went unnoticed until the LEDs were switched off at its end, its frames dark meanwhile."""
+        with self._lock:
+            if self._port is None:
+                raise DeviceError(f"{self.url}: the LED controller is closed")
+            try:
+                self._drain()
+            except (_serial().SerialException, OSError) as exc:
+                self._reconnect(exc)
+                self._after_reset(UNPLUGGED_REASON)
+                return
+            if self._reset_seen:
+                self._after_reset("it printed its boot banner")
+
     def close(self) -> None:
         """Close the port (the LEDs keep their colours)."""
         if self._port is not None:
