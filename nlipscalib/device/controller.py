@@ -287,7 +287,8 @@ class LedController:
     def check_reset(self) -> None:
         """Read what the board sent since the last command, sending nothing; a boot banner there (or a port that
         failed and came back) is handled as a command handles it: the LEDs restored, then BoardResetError unless
-        ``on_reset="restore"``. Cheap (the bytes waiting, none usually): a stream asks it at every frame.
+        ``on_reset="restore"``. A stream asks it at every frame: 1-3 us a call behind a pseudo-terminal (the firmware in
+        simavr; benchmarks/RESULTS.md, s37-resetleft).
 
         Why: a stream that lights the LEDs once (``nlips live``) sends no command while it runs, so a board that
         reset went unnoticed until the LEDs were switched off at its end, its frames dark meanwhile."""
