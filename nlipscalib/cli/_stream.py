@@ -280,6 +280,10 @@ def open_frames(
         controller = stack.enter_context(open_leds(args.port, args.adalight, args.baud))
         # dark again when the stream ends (its end, q, Ctrl-C, SIGTERM, an error): nothing drives them afterwards
         _light_tricolor(stack.enter_context(lights_out_on_exit(controller)), args.tricolor_level)
+        if callable(getattr(controller, "check_reset", None)):  # Adalight says nothing of a reset
+            from ..device.live_leds import ResetWatch
+
+            source = ResetWatch(source, controller)  # a reset relit at once, not found by the OFF at the end
     if getattr(source, "live", False):
         # a camera's first frames are stale: the one grabbed at opening (OpenCVSource's probe) and the driver's
         # buffered one show the LEDs before the tri-colour pattern was lit (dark: "a frame unlike the calibration's

@@ -287,6 +287,26 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
     one does); ``done`` gets ``stats`` (counted into as the frames go: what was streamed when an error ends it) and
     ``predict`` as the frames start; ``term``: armed as the frames start, SIGTERM then ends the stream as Ctrl-C
     does."""
+    from ..device.errors import BROWN_OUT_ADVICE, BoardResetError
+
+    try:
+        _open_and_stream(args, no_window, done, term)
+    except BoardResetError as exc:
+        if not done.get(
+            "streamed"
+        ):  # found during the stream: its own line (device.live_leds), or the driver's at the start
+            raise
+        # the LEDs' OFF at the end found it: the reset came after the last frame read found none, its banner late
+        raise BoardResetError(
+            f"{args.port}: the LED board reset as the stream ended ({exc.reason}): the maps of its last frames may "
+            f"show the LEDs dark; {BROWN_OUT_ADVICE}",
+            exc.reason,
+        ) from None
+
+
+def _open_and_stream(args: argparse.Namespace, no_window: str | None, done: dict, term: SigtermEndsStream) -> None:
+    """:func:`_run_stream`'s work; ``done["streamed"]`` set once the frames are streamed (an error after it comes
+    from closing the source and the LED board)."""
     import contextlib
 
     from ..device.live import LiveStats, SaveSink, StopLive, stream
@@ -328,6 +348,7 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
             stop=term,
             stats=done["stats"],
         )
+        done["streamed"] = True
 
 
 def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:

@@ -284,6 +284,26 @@ class LedController:
                 raise DeviceError(f"{self.url}: the LED controller is closed")
             return self._hello()
 
+    def check_reset(self) -> None:
+        """Read what the board sent since the last command, sending nothing; a boot banner there (or a port that
+        failed and came back) is handled as a command handles it: the LEDs restored, then BoardResetError unless
+        ``on_reset="restore"``. A stream asks it at every frame: 1-3 us a call behind a pseudo-terminal (the firmware in
+        simavr; benchmarks/RESULTS.md, s37-resetleft).
+
+        Why: a stream that lights the LEDs once (``nlips live``) sends no command while it runs, so a board that
+        reset went unnoticed until the LEDs were switched off at its end, its frames dark meanwhile."""
+        with self._lock:
+            if self._port is None:
+                raise DeviceError(f"{self.url}: the LED controller is closed")
+            try:
+                self._drain()
+            except (_serial().SerialException, OSError) as exc:
+                self._reconnect(exc)
+                self._after_reset(UNPLUGGED_REASON)
+                return
+            if self._reset_seen:
+                self._after_reset("it printed its boot banner")
+
     def close(self) -> None:
         """Close the port (the LEDs keep their colours)."""
         if self._port is not None:
@@ -320,12 +340,18 @@ class LedController:
                 self._shown[:] = self._staged
             return reply
 
-    def _exchange(self, command: str, *args, session: bool = True) -> p.Reply:
-        """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug."""
+    def _exchange(self, command: str, *args, session: bool = True, again: bool = False) -> p.Reply:
+        """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug.
+
+        A reset that ends the last try is said as the reset it is (BoardResetError, or with ``on_reset="restore"``
+        the command sent once more, ``again``, on the new session), never as "no valid answer".
+        """
         self._seq = seq = (self._seq + 1) & 0xFF
         failures_before = self._checksum_failures
         line = p.encode_command(seq, command, *args)
+        ended_by_reset = False
         for attempt in range(self.retries + 1):
+            ended_by_reset = False
             # a boot banner ended the last try: the reset is said below, not as a lost reply
             if attempt and not (session and self._reset_seen):
                 self.resends += 1
@@ -346,15 +372,24 @@ class LedController:
                     raise DeviceDisconnectedError(f"{self.url}: the port failed during HELLO: {exc}") from None
                 self._reconnect(exc)
                 self._after_reset(UNPLUGGED_REASON)
+                ended_by_reset = True
                 continue
             if reply is None or reply.seq == p.UNKNOWN_SEQ or reply.error == p.E_CRC:
                 continue
             if reply.error == p.E_NOSESSION and session:
                 self._after_reset("it no longer knows the session")
+                ended_by_reset = True
                 continue
             if reply.error:
                 raise self._board_error(command, args, reply)
             return reply
+        if session and self._reset_seen:
+            # its boot banner came as the last try waited: a reset, not a lost reply (it said "no valid answer to
+            # SET after 3 tries", where a banner one try earlier said "board reset detected"; s37)
+            self._after_reset("it printed its boot banner")  # raises unless on_reset="restore"
+            ended_by_reset = True
+        if ended_by_reset and not again:  # on_reset="restore": the LEDs are back; the command has not been obeyed
+            return self._exchange(command, *args, again=True)
         tries = self.retries + 1
         corrupt = self._checksum_failures - failures_before
         if corrupt >= tries:  # each answered by a resend at once: the tries did not last the timeout

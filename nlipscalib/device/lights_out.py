@@ -56,7 +56,23 @@ def lights_out_on_exit(controller: C) -> Iterator[C]:
         off_quietly(controller)  # the error in flight is the one to report (an unplugged board, Ctrl-C)
         raise
     _restore_sigterm(previous)
-    controller.off()
+    _off_through_a_reset(controller)
+
+
+def _off_through_a_reset(controller: Switchable) -> None:
+    """``controller.off()``; when it finds that the board reset (BoardResetError: the driver relit the last colours
+    as it handled it), ``off()`` again before the error goes on, so the LEDs are dark whatever is said.
+
+    Why: a board that reset during ``nlips live`` was found by the OFF at the stream's end, and the LEDs were left
+    lit in the tri-colour pattern the driver had restored (s37 device reset walk, virtual board)."""
+    from .errors import BoardResetError
+
+    try:
+        controller.off()
+    except BoardResetError:
+        with contextlib.suppress(Exception):
+            controller.off()
+        raise
 
 
 def _restore_sigterm(previous: SignalHandler) -> None:
@@ -91,7 +107,7 @@ def _off_quickly(controller: Switchable) -> None:
     """``controller.off()`` with one short try (LedController), for a process about to exit."""
     if hasattr(controller, "retries"):
         controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
-    controller.off()
+    _off_through_a_reset(controller)
 
 
 def off_quietly(controller: Switchable) -> None:

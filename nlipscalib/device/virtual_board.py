@@ -187,7 +187,7 @@ class VirtualBoard:
         self._ada = bytearray()
         self._plugged = True
         self._connection: VirtualSerial | None = None
-        self._drop = self._corrupt = self._half = self._mute = 0
+        self._drop = self._corrupt = self._half = self._mute = self._reset_on = 0
         self._pending = np.zeros((self.n_leds, 3), np.uint8)
         self._latched = np.zeros((self.n_leds, 3), np.uint8)
         self._session = False
@@ -230,6 +230,11 @@ class VirtualBoard:
     def mute(self, n: int = 1) -> None:
         """Lose the next ``n`` command lines before they are executed (nothing happens, no reply)."""
         self._mute += n
+
+    def reset_on_line(self, n: int = 1) -> None:
+        """Reboot as the ``n``-th next command line arrives, that line lost (a brown-out as the board takes it; with
+        :meth:`mute` for the lines before it, the banner comes as the host waits for a resend's reply)."""
+        self._reset_on = n
 
     def corrupt_replies(self, n: int = 1) -> None:
         """Flip one character in each of the next ``n`` replies (the host sees a checksum mismatch)."""
@@ -320,6 +325,11 @@ class VirtualBoard:
             self.executed.append(f"Ada {n}")
 
     def _handle_line(self, line: bytes) -> None:
+        if self._reset_on:
+            self._reset_on -= 1
+            if not self._reset_on:
+                self._boot(announce=True)
+                return
         if self._mute:
             self._mute -= 1
             return

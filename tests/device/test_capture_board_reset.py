@@ -133,3 +133,27 @@ def test_a_board_reset_at_every_attempt_is_one_line_and_the_same_command_resumes
     assert "reference: kept" in err and "press_0001: captured" in err and "press_0002: captured" in err
     press = load_press(out / "press_0001")
     np.testing.assert_allclose(press.linear(press.led_images), lit(camera), atol=2e-5)
+
+
+def test_a_board_reset_whose_banner_comes_on_the_last_resend_retakes_the_press(tmp_path, capsys, monkeypatch, caplog):
+    """Stopped the capture with "...: no valid answer to ALL after 4 tries of 1 s each" (exit 2): the board's
+    replies were lost until it rebooted as the last resend arrived, and its banner ended that try's wait with no try
+    left to handle it (virtual board: the reset placed on the command's fourth line, the driver's last try)."""
+    caplog.set_level(logging.WARNING)
+    board = VirtualUnderTest()
+
+    def lost_then_reset(reads: int) -> bool:
+        if reads == SEQUENCE + 6:  # press 1, as LED 4 is read: the next command's 3 tries lost, the 4th a reboot
+            board.board.mute(3)
+            board.board.reset_on_line(4)
+        return False
+
+    camera = PinCamera(board, lost_then_reset)
+    assert capture(board, camera, tmp_path, monkeypatch) == 0
+    err = capsys.readouterr().err
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert "board reset detected (it printed its boot banner)" in warnings[-1], warnings
+    assert err.count("Press 1: the LED board reset; hold still, retaking.") == 1, err
+    assert "press_0001: captured in" in err and "2 attempt(s)" in err
+    press = load_press(tmp_path / "s" / "press_0001")
+    np.testing.assert_allclose(press.linear(press.led_images), lit(camera), atol=2e-5)

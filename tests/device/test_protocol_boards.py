@@ -238,6 +238,30 @@ def test_reset_with_restore_policy_carries_on(board):
         assert board.latched()[7:9].tolist() == [[7, 7, 7], [8, 8, 8]]
 
 
+@pytest.mark.parametrize("on_reset", ["raise", "restore"])
+def test_a_reset_whose_banner_comes_on_the_last_try_is_said_as_a_reset(on_reset):
+    """It said "no valid answer to SET after 3 tries of 0.5 s each": the boot banner ended the last try's wait and
+    the loop ran out of tries before the reset was handled (virtual board: the reset placed on the last line)."""
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    with (
+        VirtualBoard(12) as board,
+        LedController.open(board.url, timeout=TIMEOUT, retries=2, on_reset=on_reset) as leds,
+    ):
+        frame = colours(3, board.n_leds)
+        leds.set_all(frame)
+        board.mute(2)  # the first two tries lost ...
+        board.reset_on_line(3)  # ... and the board reboots as the last one arrives
+        if on_reset == "raise":
+            with pytest.raises(BoardResetError, match=r"board reset detected \(it printed its boot banner\)"):
+                leds.set_led(0, (1, 1, 1))
+            np.testing.assert_array_equal(board.latched, frame)  # restored to the last acknowledged colours
+        else:  # restored, then the command obeyed on the new session
+            leds.set_led(0, (1, 1, 1))
+            np.testing.assert_array_equal(board.latched, np.concatenate([[[1, 1, 1]], frame[1:]]).astype(np.uint8))
+        assert leds.resets == 1
+
+
 def test_unplug_and_reconnect(leds, board):
     leds.set_led(0, (11, 12, 13))
     board.unplug(0.3)

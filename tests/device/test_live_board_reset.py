@@ -1,0 +1,158 @@
+"""`nlips live` when the LED board reboots mid-stream (a brown-out, the watchdog, the reset button), run as a user
+runs it: a camera that sees what the board's LEDs show, the virtual board and the firmware in simavr (its MCU reset
+by the harness; skipped without gcc-avr, avr-libc and simavr, failed when NLIPS_REQUIRE_DEVICE_TOOLS=1).
+
+What the user must see: one warning, the tri-colour pattern relit and the stream going on, no map saved from a frame
+read as the reset was found; a board that resets at every frame ends the stream in one line (exit 2), the maps saved
+before it kept; the LEDs dark once the command ends, whatever happened.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.device import camera as device_camera  # noqa: E402
+from nlipscalib.device.controller import BoardResetError, LedController  # noqa: E402
+from nlipscalib.device.lights_out import lights_out_on_exit  # noqa: E402
+from nlipscalib.device.virtual_board import VirtualBoard  # noqa: E402
+from tests.processes import wait_until  # noqa: E402
+
+from .fakes import errors_only, flat_predictor  # noqa: E402
+from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build  # noqa: E402
+from .test_capture_board_reset import PinCamera  # noqa: E402
+
+FRAMES = 8
+RESET_AFTER = {}
+"""``board``: what :func:`resetting_predictor` resets as it infers frame ``frame`` (1-based), after its read."""
+
+
+@pytest.fixture(params=["virtual", "simavr"])
+def led_board(request, tmp_path):
+    if request.param == "virtual":
+        under_test = VirtualUnderTest()
+    else:
+        elf, harness = firmware_build()
+        under_test = SimavrUnderTest(elf, harness, tmp_path / "ttyNLIPS")
+    yield under_test
+    under_test.close()
+
+
+def resetting_predictor(shape):
+    """:func:`~tests.device.fakes.flat_predictor` that resets ``RESET_AFTER["board"]`` as it infers frame
+    ``RESET_AFTER["frame"]``: after the read that asked the board, so found only by what comes next."""
+    predict, calls = flat_predictor(shape), [0]
+
+    def resetting(frame):
+        calls[0] += 1
+        if calls[0] == RESET_AFTER["frame"]:
+            RESET_AFTER["board"].reset()
+        return predict(frame)
+
+    return resetting
+
+
+class LivePinCamera(PinCamera):
+    """:class:`PinCamera` as a live camera (its stale frames flushed once the pattern is lit)."""
+
+    live = True
+
+    def flush(self):
+        pass
+
+
+def live(board, camera, tmp_path, monkeypatch, predictor: str = "tests.device.fakes:flat_predictor") -> int:
+    monkeypatch.setattr(device_camera, "open_source", lambda *args, **kwargs: camera)
+    args = ["live", "--camera", "pin", "--port", board.url, "--predictor", predictor]
+    return main([*args, "--no-window", "--max-frames", str(FRAMES), "--out", str(tmp_path / "maps")])
+
+
+def saved_depths(tmp_path) -> list[float]:
+    """Each saved map's depth (flat_predictor: the frame's mean green value / 1000), frame by frame."""
+    return [float(np.load(f)["depth"].mean()) for f in sorted((tmp_path / "maps").glob("frame_*.npz"))]
+
+
+def test_a_board_reset_mid_stream_is_one_warning_the_pattern_relit_and_no_dark_map_saved(
+    tmp_path, capsys, monkeypatch, caplog
+):
+    """The stream went on with the LEDs dark and saved dark maps for every later frame; its end's OFF found the
+    reset, the driver relit the pattern and raised its capture advice ("... retake any frame captured since the
+    previous command"), exit 2 after "saved: 8 of 8 frames", and the LEDs were left lit."""
+    caplog.set_level(logging.WARNING)
+    board = VirtualUnder()  # its banner at once: found by the next read (the firmware's comes later, at its pace)
+    camera = LivePinCamera(board, lambda reads: reads == 4)
+    assert live(board, camera, tmp_path, monkeypatch) == 0
+    err = capsys.readouterr().err
+    assert errors_only(err) == [line for line in err.splitlines() if line.startswith(("8 frames in", "saved: 8 of 8"))]
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    ours = [w for w in warnings if "reset during the stream" in w]
+    assert len(ours) == 1 and "the tri-colour pattern is lit again" in ours[0] and "browning out" in ours[0], warnings
+    depths = saved_depths(tmp_path)
+    assert len(depths) == FRAMES and np.ptp(depths) < 1e-3 * depths[0], depths  # every map of a lit frame
+    assert wait_until(lambda: not board.latched().any()), "the LEDs are dark once the stream ended"
+
+
+def test_a_board_reset_at_the_last_frame_is_one_line_and_the_leds_left_dark(led_board, tmp_path, capsys, monkeypatch):
+    """Found by the LEDs' OFF at the end: it said the driver's "... retake any frame captured since the previous
+    command", and the LEDs were left lit in the pattern the driver had restored."""
+    board = led_board
+    camera = LivePinCamera(board, lambda reads: False)
+    monkeypatch.setitem(RESET_AFTER, "board", board)
+    monkeypatch.setitem(RESET_AFTER, "frame", FRAMES)
+    predictor = "tests.device.test_live_board_reset:resetting_predictor"
+    assert live(board, camera, tmp_path, monkeypatch, predictor) == 2
+    err = capsys.readouterr().err
+    (line,) = [line for line in errors_only(err) if "error:" in line]
+    assert line.startswith(
+        f"nlips live: error: {board.url}: the LED board reset as the stream ended ("
+    ) and line.endswith(
+        "): the maps of its last frames may show the LEDs dark; a board that resets as its LEDs light is often "
+        "browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in "
+        "the nlipscalib source distribution or repository)"
+    ), line
+    assert f"{FRAMES} frames in" in err and "Traceback" not in err
+    assert wait_until(lambda: not board.latched().any()), "the LEDs are dark once the stream ended"
+
+
+def test_a_board_that_resets_at_every_frame_ends_the_stream_in_one_line(tmp_path, capsys, monkeypatch):
+    board = VirtualUnder()
+    camera = LivePinCamera(board, lambda reads: reads >= 4)
+    assert live(board, camera, tmp_path, monkeypatch) == 2
+    err = capsys.readouterr().err
+    assert errors_only(err)[-1] == (
+        f"nlips live: error: {board.url}: the LED board reset at each of 3 frames in a row, so the stream stopped: a "
+        "board that resets as its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a "
+        "supply too weak: firmware/README.md, Wiring, in the nlipscalib source distribution or repository)"
+    )
+    assert "3 frames in" in err and "Traceback" not in err
+    assert len(saved_depths(tmp_path)) == 3  # the maps before it kept
+    assert not board.latched().any()
+
+
+def test_lights_out_switches_the_leds_off_when_the_off_finds_a_reset():
+    """The driver relit the last colours as the OFF found the reset, and raised: the LEDs were left lit."""
+    with VirtualBoard(12) as vboard, LedController.open(vboard.url, timeout=0.5) as leds:
+        with pytest.raises(BoardResetError, match="board reset detected"):
+            with lights_out_on_exit(leds):
+                leds.set_all(np.full((12, 3), 200, np.uint8))
+                vboard.reset()
+        assert not vboard.latched.any()
+
+
+class VirtualUnder:
+    """The virtual board as the tests of test_capture_board_reset.py drive it (``latched()``, ``reset()``)."""
+
+    def __init__(self):
+        self.board = VirtualBoard(12)
+        self.url, self.n_leds = self.board.url, 12
+
+    def latched(self):
+        return self.board.latched
+
+    def reset(self):
+        self.board.reset()
