@@ -247,9 +247,9 @@ def test_the_black_level_named_for_a_press_declaring_a_tone_curve_is_the_cameras
         light = np.clip((read_png16(path).astype(float) - black) / (white - black), 0, 1)
         encoded = np.clip(np.rint(black + pedestal + _srgb(light) * (white - black)), 0, white)
         write_png16(path, encoded.astype(np.uint16))
-    meta = json.loads((folder / "meta.json").read_text())
+    meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
     meta["sensor"]["camera_response"] = "srgb"
-    (folder / "meta.json").write_text(json.dumps(meta))
+    (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     recorded_anew(folder)
     press = load_press(folder)
     message, refused = dark_frame_fault(press)
