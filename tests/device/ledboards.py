@@ -167,3 +167,12 @@ class SimavrUnderTest:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+def board_under_test(kind: str, folder: Path):
+    """The board of ``kind`` ("virtual" or "simavr", its pseudo-terminal in ``folder``) for a parametrised fixture;
+    the caller closes it."""
+    if kind == "virtual":
+        return VirtualUnderTest()
+    elf, harness = firmware_build()
+    return SimavrUnderTest(elf, harness, folder / "ttyNLIPS")

@@ -23,7 +23,7 @@ from nlipscalib.device import camera as device_camera  # noqa: E402
 from nlipscalib.device.camera import FrameSource  # noqa: E402
 
 from .fakes import errors_only  # noqa: E402
-from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build  # noqa: E402
+from .ledboards import VirtualUnderTest, board_under_test  # noqa: E402
 from .test_capture_device import SEQUENCE, H, W, camera_file  # noqa: E402
 
 BLACK = 256
@@ -34,11 +34,7 @@ GAIN = 65000
 
 @pytest.fixture(params=["virtual", "simavr"])
 def board(request, tmp_path):
-    if request.param == "virtual":
-        under_test = VirtualUnderTest()
-    else:
-        elf, harness = firmware_build()
-        under_test = SimavrUnderTest(elf, harness, tmp_path / "ttyNLIPS")
+    under_test = board_under_test(request.param, tmp_path)
     yield under_test
     under_test.close()
 

@@ -24,7 +24,7 @@ from nlipscalib.device.virtual_board import VirtualBoard  # noqa: E402
 from tests.processes import wait_until  # noqa: E402
 
 from .fakes import errors_only, flat_predictor  # noqa: E402
-from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build  # noqa: E402
+from .ledboards import board_under_test  # noqa: E402
 from .test_capture_board_reset import PinCamera  # noqa: E402
 
 FRAMES = 8
@@ -34,11 +34,7 @@ RESET_AFTER = {}
 
 @pytest.fixture(params=["virtual", "simavr"])
 def led_board(request, tmp_path):
-    if request.param == "virtual":
-        under_test = VirtualUnderTest()
-    else:
-        elf, harness = firmware_build()
-        under_test = SimavrUnderTest(elf, harness, tmp_path / "ttyNLIPS")
+    under_test = board_under_test(request.param, tmp_path)
     yield under_test
     under_test.close()
 
