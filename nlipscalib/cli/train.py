@@ -77,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--weight-decay",
         type=float,
-        help="decoupled weight decay (AdamW; default: TrainConfig's, 0.2: the net extrapolates more gently to "
+        help="decoupled weight decay (AdamW; default: TrainConfig's, 0.5: the net extrapolates more gently to "
         "colours no calibration press showed, which lifted Q2's unseen indenters; 0: Adam without decay, as before "
         "the thirty-fifth session)",
     )

@@ -382,6 +382,18 @@ def test_weight_decay_is_on_by_default_shrinks_the_weights_and_is_left_out_of_th
     assert weights(1.0) < 0.8 * weights(0.0)
 
 
+def test_default_weight_decay_is_the_one_tuned_with_the_colour_ratio_input():
+    """0.5 by default: with the colour-ratio input it beat 0.2 on Q2 medium's unseen split at three training seeds
+    (docs/experiments/RESULTS.md, s37-unseen2). The checkpoints' options (and so the experiments' model keys) hold it,
+    so a net trained at the earlier default, 0.2, is never reused as one trained at this one."""
+    from nlipscalib.learn.checkpoint import jsonable_config
+    from nlipscalib.learn.train import DEFAULT_WEIGHT_DECAY, TrainConfig
+
+    assert TrainConfig().weight_decay == DEFAULT_WEIGHT_DECAY == 0.5
+    assert jsonable_config(TrainConfig())["weight_decay"] == 0.5
+    assert jsonable_config(TrainConfig()) != jsonable_config(TrainConfig(weight_decay=0.2))
+
+
 @pytest.mark.parametrize("scripted, best", [([5.0, 4.0, 3.0], 3), ([3.0, 4.0, 5.0], 1)])
 def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch, scripted, best):
     from nlipscalib.learn import train as train_module
