@@ -67,7 +67,10 @@ Q2 medium, docs/experiments/RESULTS.md, s37-unseen2): against 0.2 the unseen spl
 2.94 / 2.89 / 2.97 deg vs truth at three training seeds (2.41 / 2.40 / 2.28 -> 2.12 / 2.13 / 2.16 vs the labels,
 the coin 5.54 / 5.37 / 5.29 -> 4.99 / 4.96 / 4.99), the seen split 0.93 / 0.97 / 0.95 -> 0.89 / 0.94 / 0.93; at
 seed 0 0.05 / 0.35 / 0.7 / 1.0 gave 3.13 / 3.01 / 2.94 / 3.04. With linear colours 0.5 beat 0.2 at the same three
-seeds too (unseen 3.32 / 3.44 / 3.31 -> 3.21 / 3.22 / 3.26, seen 0.97 / 1.10 / 0.95 -> 0.94 / 1.08 / 0.92).
+seeds too (unseen 3.32 / 3.44 / 3.31 -> 3.21 / 3.22 / 3.26, seen 0.97 / 1.10 / 0.95 -> 0.94 / 1.08 / 0.92). At full
+size the gain is small (Q2 full, ratio, two seeds: unseen 3.052 / 3.031 -> 3.023 / 3.024 vs truth, 2.532 / 2.528 ->
+2.497 / 2.501 vs labels, seen 0.845 / 0.853 -> 0.831 / 0.863; docs/experiments/RESULTS.md, the thirty-seventh
+session's lead section).
 Before, with linear colours (s35-unseen): 0.01 moved the unseen split by -0.04 / -0.05 deg vs truth at two seeds,
 0.05 by -0.19 at each of three, 0.2 by -0.51 / -0.36 at two, the seen split no worse at any; at full size, two
 seeds, 0.2 against none (the lead's rerun): seen -0.03 / -0.04 vs truth, unseen -0.06 / -0.14 vs the labels and
