@@ -918,5 +918,5 @@ def test_the_options_a_checkpoint_left_out_are_named_by_what_they_meant():
     assert _options_changed(_trajectory_options(linear), ratio) == "colour_input 'linear' -> 'ratio'"
     assert _options_changed(_trajectory_options(ratio), linear) == "colour_input 'ratio' -> 'linear'"
     no_decay = dataclasses.replace(ratio, weight_decay=0.0)
-    assert _options_changed(_trajectory_options(no_decay), ratio) == "weight_decay 0.0 -> 0.2"
+    assert _options_changed(_trajectory_options(no_decay), ratio) == f"weight_decay 0.0 -> {ratio.weight_decay}"
     assert _options_changed(_trajectory_options(ratio), ratio) == ""
