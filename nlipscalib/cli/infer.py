@@ -570,6 +570,7 @@ def _write_stream_report(
         "backend": predictor.backend,
         "hidden": list(predictor.model.hidden),
         "frames": stats.frames,
+        "dropped": stats.dropped,  # read while the LED board had reset (device.live_leds.ResetWatch)
         "wall_s": stats.seconds,
         "fps": stats.fps,
         "median_stage_s": stages.medians(),
