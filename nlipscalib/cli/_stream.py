@@ -9,7 +9,7 @@ import argparse
 import contextlib
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,7 +23,9 @@ if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
 
     from ..core.claims import Owner
     from ..device.camera import FrameSource
-    from ..emulator import EmulatedCamera
+    from ..device.errors import BoardResetError
+    from ..device.live import LiveStats
+    from ..device.live_leds import ResetWatch
     from ..learn.infer import Predictor
     from .leds import LedBoard
 
@@ -244,6 +246,8 @@ def open_frames(
     loop: bool = False,
     camera_response: str = "linear",
     tone_curve: np.ndarray | None = None,
+    stats: LiveStats | None = None,
+    read_ahead: bool = False,
 ) -> tuple[FrameSource, Callable[[int], None] | None]:
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
     ``camera_response``: the model's (``Predictor.camera_response``); a live camera is asked for gamma 1.0 only
@@ -259,14 +263,25 @@ def open_frames(
     The emulated sensor's stream is its script once (the undeformed dome, then each press, for
     ``--frames-per-press`` frames each) and then ends, as a recording does; it loops when ``loop`` (a window
     shows it: until q) or a frame limit (``--max-frames``) asks for more.
+
+    The LED board (``--port``, the emulated sensor's own) is watched at every frame read
+    (:class:`nlipscalib.device.live_leds.ResetWatch`): a reset relit and said, the frames read while its LEDs were
+    dark dropped and counted in ``stats.dropped`` (a recording's frames, not lit by it, all kept). ``read_ahead``: a
+    recording is decoded ahead on threads (``device.live.ReadAhead``), inside the watch, so each frame handed out is
+    watched in this thread.
     """
     from ..device.camera import CameraSettings, open_source
 
     if args.emulate:
-        return _emulated_source(args, stack, loop=loop or args.max_frames is not None)
+        return _emulated_source(args, stack, loop=loop or args.max_frames is not None, stats=stats)
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
     source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
+    live = getattr(source, "live", False)
+    if read_ahead and not live:  # a video, sequence or folder: decoded while the frame before is inferred
+        from ..device.live import ReadAhead
+
+        source = stack.enter_context(ReadAhead(source))
     if args.port:
         from ..device.lights_out import lights_out_on_exit
         from ..device.port import BAUD_RATE
@@ -283,13 +298,54 @@ def open_frames(
         if callable(getattr(controller, "check_reset", None)):  # Adalight says nothing of a reset
             from ..device.live_leds import ResetWatch
 
-            source = ResetWatch(source, controller)  # a reset relit at once, not found by the OFF at the end
-    if getattr(source, "live", False):
+            # a reset relit at once, not found by the OFF at the end; a recording's frames were not lit by it
+            source = ResetWatch(source, controller, lit_by_board=live, stats=stats)
+    if live:
         # a camera's first frames are stale: the one grabbed at opening (OpenCVSource's probe) and the driver's
         # buffered one show the LEDs before the tri-colour pattern was lit (dark: "a frame unlike the calibration's
         # reference") or the gel seconds ago; dropped once here, never during the stream (the LEDs stay lit)
         source.flush()
     return source, None
+
+
+@contextlib.contextmanager
+def reset_at_the_end(port: str | None, stats: LiveStats) -> Iterator[dict]:
+    """Word a board reset found as the stream's LED board is switched off (``lights_out_on_exit`` closing with the
+    source, after the frames) for ``nlips live`` and ``nlips infer`` alike: the block sets ``["streamed"] = True``
+    in the dict it gets once its frames are streamed, and ``["lit_by_board"]`` from its source; a BoardResetError
+    after that is raised again as :func:`reset_at_the_end_error` words it, one before it as it came (the watch's
+    own line during the stream, the driver's as the LEDs were lit).
+
+    Why: the driver's line ("... have been restored to the last acknowledged colours; retake any frame captured
+    since the previous command") was false there (the LEDs were switched off again) and said nothing of the stream's
+    frames; ``nlips infer`` said it, ``nlips live`` its own wording."""
+    from ..device.errors import BoardResetError
+
+    state = {"streamed": False, "lit_by_board": False}
+    try:
+        yield state
+    except BoardResetError as exc:
+        if not state["streamed"]:
+            raise
+        raise reset_at_the_end_error(port, exc, stats, state["lit_by_board"]) from None
+
+
+def reset_at_the_end_error(port: str | None, exc: BoardResetError, stats: LiveStats, lit_by_board: bool):
+    """The BoardResetError of a reset found by the LEDs' OFF after the stream's last frame (:func:`reset_at_the_end`):
+    what happened, what became of the frames, that the LEDs are off, and the likely cause. ``lit_by_board``: the
+    frames show the board's light (a camera, watched for dark frames); else a recording's, not lit by it."""
+    from ..device.errors import BROWN_OUT_ADVICE, BoardResetError
+
+    frames = f"{stats.frames} frame{'s' if stats.frames != 1 else ''}"
+    if lit_by_board:
+        kept = f"its {frames} were each read with the board found lit and none dark, and are kept"
+    else:
+        kept = f"its {frames} are recorded ones, not lit by the board, and are kept"
+    return BoardResetError(
+        f"{port}: the LED board reset as the stream ended, after its last frame ({exc.reason}; found as the LEDs "
+        f"were switched off): {kept}; the LEDs are off; {BROWN_OUT_ADVICE}",
+        exc.reason,
+    )
 
 
 def size_emulator_for(args: argparse.Namespace, shape: tuple[int, int]) -> None:
@@ -442,8 +498,8 @@ def refreshed_reference(predictor: Predictor, path: str | Path) -> np.ndarray:
 
 
 def _emulated_source(
-    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool
-) -> tuple[EmulatedCamera, Callable[[int], None]]:
+    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool, stats: LiveStats | None = None
+) -> tuple[ResetWatch, Callable[[int], None]]:
     from ..emulator import EmulatedCamera, ScriptedStream, TwinRenders, default_script, load_script, tricolor_level
     from ..sim.scene import load_scene
 
@@ -467,8 +523,11 @@ def _emulated_source(
     surfaces = [None] + [s.press for s in script]
     for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
         renders.images(surface)
+    from ..device.live_leds import ResetWatch
 
-    return camera, ScriptedStream(camera, surfaces, args.frames_per_press, loop)
+    script = ScriptedStream(camera, surfaces, args.frames_per_press, loop)
+    # its board is watched as a real one is (a reset injected through its nlipsemu:// URL darkens the twin's frames)
+    return ResetWatch(camera, controller, lit_by_board=True, stats=stats), script
 
 
 class SigtermEndsStream:

@@ -303,18 +303,24 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     import time
 
     from ..core.errors import CaptureError, NlipsError
-    from ..device.live import LiveStats, ReadAhead, SaveSink, stream
+    from ..device.live import LiveStats, SaveSink, stream
     from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
-    from ._stream import open_frames, running_rate_report
+    from ._stream import open_frames, reset_at_the_end, running_rate_report
 
     stats, watch, stages, cpu0 = LiveStats(), None, None, None
     try:
-        with contextlib.ExitStack() as stack:
+        # a board reset found as the LEDs are switched off after the frames: said as nlips live says it
+        with reset_at_the_end(args.port, stats) as ended, contextlib.ExitStack() as stack:
             # the model's tone curve undone as each frame is converted (an 8-bit frame's in one 256-entry lookup,
             # on ReadAhead's threads for files), not again by the predictor
             source, before_frame = open_frames(
-                args, stack, camera_response=predictor.camera_response, tone_curve=predictor.tone_curve
+                args,
+                stack,
+                camera_response=predictor.camera_response,
+                tone_curve=predictor.tone_curve,
+                stats=stats,
+                read_ahead=True,
             )
             in_light = getattr(source, "tone_curve", None) is not None  # the emulated sensor: linear frames
             if tuple(source.shape) != predictor.shape:
@@ -323,7 +329,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                     f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
                 )
             if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
-                source = _EndsCleanly(stack.enter_context(ReadAhead(source)))
+                source = _EndsCleanly(source)  # decoded ahead on threads (open_frames's read_ahead)
             stages = _StageTimes()
             sinks = []
             if args.out:
@@ -338,6 +344,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
 
+            ended["lit_by_board"] = getattr(source, "lit_by_board", False)
             term.arm()
             cpu0 = time.process_time()
             stream(
@@ -351,6 +358,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 stats=stats,
             )
             cpu = time.process_time() - cpu0
+            ended["streamed"] = True
     except (NlipsError, OSError):
         if not stats.frames or watch is None:
             raise
@@ -562,6 +570,7 @@ def _write_stream_report(
         "backend": predictor.backend,
         "hidden": list(predictor.model.hidden),
         "frames": stats.frames,
+        "dropped": stats.dropped,  # read while the LED board had reset (device.live_leds.ResetWatch)
         "wall_s": stats.seconds,
         "fps": stats.fps,
         "median_stage_s": stages.medians(),

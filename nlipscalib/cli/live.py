@@ -31,6 +31,7 @@ from ._stream import (
     held_stream_folder,
     nlipsnet_predictor,
     open_frames,
+    reset_at_the_end,
     running_rate_report,
     saved_line,
     size_emulator_for,
@@ -286,30 +287,22 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
     """Open the source, the predictor and the sinks, and stream; ``no_window``: why no window shows the maps (None:
     one does); ``done`` gets ``stats`` (counted into as the frames go: what was streamed when an error ends it) and
     ``predict`` as the frames start; ``term``: armed as the frames start, SIGTERM then ends the stream as Ctrl-C
-    does."""
-    from ..device.errors import BROWN_OUT_ADVICE, BoardResetError
+    does. A board reset found as the LEDs are switched off after the frames: :func:`._stream.reset_at_the_end`."""
+    from ..device.live import LiveStats
 
-    try:
-        _open_and_stream(args, no_window, done, term)
-    except BoardResetError as exc:
-        if not done.get(
-            "streamed"
-        ):  # found during the stream: its own line (device.live_leds), or the driver's at the start
-            raise
-        # the LEDs' OFF at the end found it: the reset came after the last frame read found none, its banner late
-        raise BoardResetError(
-            f"{args.port}: the LED board reset as the stream ended ({exc.reason}): the maps of its last frames may "
-            f"show the LEDs dark; {BROWN_OUT_ADVICE}",
-            exc.reason,
-        ) from None
+    done["stats"] = LiveStats()
+    with reset_at_the_end(args.port, done["stats"]) as ended:
+        _open_and_stream(args, no_window, done, term, ended)
 
 
-def _open_and_stream(args: argparse.Namespace, no_window: str | None, done: dict, term: SigtermEndsStream) -> None:
-    """:func:`_run_stream`'s work; ``done["streamed"]`` set once the frames are streamed (an error after it comes
-    from closing the source and the LED board)."""
+def _open_and_stream(
+    args: argparse.Namespace, no_window: str | None, done: dict, term: SigtermEndsStream, ended: dict
+) -> None:
+    """:func:`_run_stream`'s work; ``ended["streamed"]`` set once the frames are streamed (an error after it comes
+    from closing the source and the LED board), ``ended["lit_by_board"]`` from the source."""
     import contextlib
 
-    from ..device.live import LiveStats, SaveSink, StopLive, stream
+    from ..device.live import SaveSink, StopLive, stream
     from ..report.live import NormalMapPng, WindowSink
 
     with contextlib.ExitStack() as stack:
@@ -321,13 +314,18 @@ def _open_and_stream(args: argparse.Namespace, no_window: str | None, done: dict
         if args.model:  # the model's camera response: the camera asked for gamma 1.0 only when linear
             tone_curve = predict.predictor.tone_curve  # undone as each frame is converted, not again by the model
             source, before_frame = open_frames(
-                args, stack, loop=window, camera_response=predict.predictor.camera_response, tone_curve=tone_curve
+                args,
+                stack,
+                loop=window,
+                camera_response=predict.predictor.camera_response,
+                tone_curve=tone_curve,
+                stats=done["stats"],
             )
             predict.in_light = getattr(source, "tone_curve", None) is not None
         else:
             factory = _factory(args.predictor)
             response = plugged_response(args, factory)
-            source, before_frame = open_frames(args, stack, loop=window, camera_response=response)
+            source, before_frame = open_frames(args, stack, loop=window, camera_response=response, stats=done["stats"])
             predict, reference_depth = _plugged(args.predictor, source.shape, factory)
         sinks = []
         if args.out:
@@ -336,7 +334,8 @@ def _open_and_stream(args: argparse.Namespace, no_window: str | None, done: dict
             sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.out:
             print(f"{no_window}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
-        done["stats"], done["predict"] = LiveStats(), predict
+        done["predict"] = predict
+        ended["lit_by_board"] = getattr(source, "lit_by_board", False)
         term.arm()
         stream(
             source,
@@ -348,7 +347,7 @@ def _open_and_stream(args: argparse.Namespace, no_window: str | None, done: dict
             stop=term,
             stats=done["stats"],
         )
-        done["streamed"] = True
+        ended["streamed"] = True
 
 
 def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:

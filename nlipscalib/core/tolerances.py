@@ -969,3 +969,11 @@ the smallest over the largest singular value of the three groups' sums at the ge
 norm) at least this. The twin's dome: 0.18-0.24 (80x60 to 640x480, pressed or not); frames lit evenly (a flat target,
 the capture tests' grey frames): 0, any gains fit them, and a verdict there named colours it could not tell
 (:func:`nlipscalib.core.tricolor_check.tricolor_note`; s37-tricap)."""
+
+RESET_DARK_FRAME_SHARE = 0.5
+"""A stream watching its LED board (``device.live_leds.ResetWatch``: ``nlips live`` / ``nlips infer`` of a camera or
+the emulated sensor with ``--port``) asks the board whether it reset when a frame's level (the mean of a subsample)
+falls under this share of the last lit frame's: the LEDs dark, the frame holds the black level and any stray light
+(the reset tests' camera: 0.024 of a lit frame; the emulated sensor's dark frame is found too, its test), where a
+press moves a frame's mean by a few per cent. A wrong call costs one exchange with the board (STATE, 11-20 ms at
+115200 on the firmware in simavr), nothing dropped (benchmarks/RESULTS.md, s38-devwatch)."""

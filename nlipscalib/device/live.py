@@ -57,6 +57,9 @@ class LiveStats:
     output_s: float = 0.0
     """Time spent showing, saving or printing the running rate, s (read, predict and output cover each frame's
     whole loop step; the wall time adds only the start and the read that found the end)."""
+    dropped: int = 0
+    """Frames read but not streamed: read while the LED board had reset, its LEDs dark
+    (:class:`~nlipscalib.device.live_leds.ResetWatch` counts them here); their reading time is in ``read_s``."""
 
     @property
     def fps(self) -> float:
@@ -69,10 +72,11 @@ class LiveStats:
         whole predictor's call). They were "camera" and "network": a video has no camera, and ``nlips infer``'s next
         line has a "network" stage that is only a part of that call (13 ms of 23)."""
         n = max(self.frames, 1)
+        dropped = f"; {self.dropped} more dropped, read while the LED board had reset" if self.dropped else ""
         return (
             f"{self.frames} frames in {self.seconds:.2f} s: {self.fps:.1f} fps "
             f"(per frame: read {1e3 * self.read_s / n:.1f} ms, predictor {1e3 * self.predict_s / n:.1f} ms, "
-            f"output {1e3 * self.output_s / n:.1f} ms)"
+            f"output {1e3 * self.output_s / n:.1f} ms){dropped}"
         )
 
 

@@ -244,10 +244,12 @@ class VirtualBoard:
         """Send only the first half of the next ``n`` replies, without newline."""
         self._half += n
 
-    def reset(self) -> None:
-        """Reboot now (watchdog, brown-out, reset button): LEDs off, session lost, banner printed."""
+    def reset(self, banner: bool = True) -> None:
+        """Reboot now (watchdog, brown-out, reset button): LEDs off, session lost, banner printed; ``banner=False``:
+        the banner lost on the line (noise, a USB glitch), so the host learns of the reset only from the board's
+        NOSESSION (or sees it as a real board still booting would be seen: dark LEDs, nothing said yet)."""
         with self._cond:
-            self._boot(announce=True)
+            self._boot(announce=banner)
 
     def unplug(self, replug_after_s: float | None = None) -> None:
         """Pull the USB cable: the open port breaks and cannot be reopened until plug()."""

@@ -1,7 +1,7 @@
 """Boards the LED protocol tests run against: the virtual board, and the real firmware in simavr.
 
-Both are driven through the same small interface (url, latched(), reset(), unplug(), drop_replies(), noise()),
-so one parametrised suite (test_protocol_boards.py) checks both.
+Both are driven through the same small interface (url, latched(), reset(), reset_unannounced(), unplug(),
+drop_replies(), noise()), so one parametrised suite (test_protocol_boards.py) checks both.
 """
 
 from __future__ import annotations
@@ -84,6 +84,10 @@ class VirtualUnderTest:
     def reset(self) -> None:
         self.board.reset()
 
+    def reset_unannounced(self) -> None:
+        """A reset whose boot banner the host never gets (lost on the line): its LEDs dark, its session gone."""
+        self.board.reset(banner=False)
+
     def unplug(self, seconds: float) -> None:
         self.board.unplug(replug_after_s=seconds)
 
@@ -143,6 +147,11 @@ class SimavrUnderTest:
         return np.frombuffer(bytes.fromhex(rgb), np.uint8).reshape(-1, 3).copy()
 
     def reset(self) -> None:
+        self.ask("reset")
+
+    def reset_unannounced(self) -> None:
+        """A reset whose boot banner the host never gets (the harness drops it): LEDs dark, session gone."""
+        self.ask("drop 1")
         self.ask("reset")
 
     def unplug(self, seconds: float) -> None:

@@ -95,7 +95,8 @@ def test_a_board_reset_mid_stream_is_one_warning_the_pattern_relit_and_no_dark_m
 
 def test_a_board_reset_at_the_last_frame_is_one_line_and_the_leds_left_dark(led_board, tmp_path, capsys, monkeypatch):
     """Found by the LEDs' OFF at the end: it said the driver's "... retake any frame captured since the previous
-    command", and the LEDs were left lit in the pattern the driver had restored."""
+    command", and the LEDs were left lit in the pattern the driver had restored; then (s37) "the maps of its last
+    frames may show the LEDs dark", which the watch for dark frames now rules out (s38)."""
     board = led_board
     camera = LivePinCamera(board, lambda reads: False)
     monkeypatch.setitem(RESET_AFTER, "board", board)
@@ -105,11 +106,12 @@ def test_a_board_reset_at_the_last_frame_is_one_line_and_the_leds_left_dark(led_
     err = capsys.readouterr().err
     (line,) = [line for line in errors_only(err) if "error:" in line]
     assert line.startswith(
-        f"nlips live: error: {board.url}: the LED board reset as the stream ended ("
+        f"nlips live: error: {board.url}: the LED board reset as the stream ended, after its last frame ("
     ) and line.endswith(
-        "): the maps of its last frames may show the LEDs dark; a board that resets as its LEDs light is often "
-        "browning out (the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in "
-        "the nlipscalib source distribution or repository)"
+        f"; found as the LEDs were switched off): its {FRAMES} frames were each read with the board found lit and "
+        "none dark, and are kept; the LEDs are off; a board that resets as its LEDs light is often browning out (the "
+        "LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in the nlipscalib source "
+        "distribution or repository)"
     ), line
     assert f"{FRAMES} frames in" in err and "Traceback" not in err
     assert wait_until(lambda: not board.latched().any()), "the LEDs are dark once the stream ended"
@@ -152,3 +154,69 @@ class VirtualUnder:
 
     def reset(self):
         self.board.reset()
+
+
+def test_a_reset_whose_banner_never_comes_is_found_by_its_dark_frames_and_they_are_dropped(
+    led_board, tmp_path, capsys, monkeypatch, caplog
+):
+    """A reset whose boot banner is lost on the line (or has not come yet: a board still booting) darkens the frames
+    while the board says nothing: the stream saved a dark map for every later frame, silently, until the LEDs' OFF at
+    the end found the lost session (exit 2). Now the first dark frame makes the watch ask the board (NOSESSION): the
+    pattern relit, the dark frames dropped and counted in the summary, exit 0."""
+    caplog.set_level(logging.WARNING)
+    board = led_board
+
+    def reset_unannounced(reads: int) -> bool:
+        if reads == 4:
+            board.reset_unannounced()
+        return False
+
+    camera = LivePinCamera(board, reset_unannounced)
+    assert live(board, camera, tmp_path, monkeypatch) == 0
+    err = capsys.readouterr().err
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    ours = [w for w in warnings if "reset during the stream" in w]
+    assert len(ours) == 1 and "(it no longer knows the session)" in ours[0], warnings
+    assert "the frames read while its LEDs were dark dropped (counted in the summary)" in ours[0]
+    (summary,) = [line for line in err.splitlines() if line.startswith(f"{FRAMES} frames in")]
+    assert summary.endswith(" more dropped, read while the LED board had reset"), summary
+    depths = saved_depths(tmp_path)
+    assert len(depths) == FRAMES and np.ptp(depths) < 1e-3 * depths[0], depths  # every map of a lit frame
+    assert wait_until(lambda: not board.latched().any()), "the LEDs are dark once the stream ended"
+
+
+class DarkLeds:
+    """A board whose LEDs' supply is off from the 4th read: it answers, holds the pattern, and lights nothing."""
+
+    def __init__(self, board):
+        self.board, self.url, self.n_leds, self.reads = board, board.url, board.n_leds, 0
+
+    def latched(self):
+        return self.board.latched() * (self.reads < 4)
+
+    def reset(self):
+        self.board.reset()
+
+
+def test_dark_frames_from_a_board_that_did_not_reset_are_streamed_with_one_warning(
+    tmp_path, capsys, monkeypatch, caplog
+):
+    """The watch asks the board once when frames go dark; a board that holds the pattern lit did not reset: the
+    frames are streamed (nothing dropped) and the user is told once to look at the LEDs' supply."""
+    caplog.set_level(logging.WARNING)
+    board = DarkLeds(VirtualUnder())
+
+    def count(reads: int) -> bool:
+        board.reads = reads
+        return False
+
+    assert live(board, LivePinCamera(board, count), tmp_path, monkeypatch) == 0
+    err = capsys.readouterr().err
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not any("reset" in w for w in warnings), warnings
+    (dark,) = [w for w in warnings if "frames read dark" in w]
+    assert dark.endswith(
+        "while the LED board holds the tri-colour pattern lit, so they are streamed: is the LEDs' "
+        "supply on and their cable seated?"
+    ), dark
+    assert "dropped" not in err and len(saved_depths(tmp_path)) == FRAMES

@@ -80,3 +80,44 @@ def test_live_source_mistakes_are_one_line(tmp_path, capsys, extra, message):
     err = capsys.readouterr().err
     assert err.startswith("nlips live: error: ") and message in err and err.count("\n") == 1, err
     assert not (tmp_path / "m").exists()
+
+
+RESET_AT = {}
+"""``url``, ``frame``: the emulated sensor's board :func:`resetting_green_predictor` resets as it takes that frame."""
+
+
+def resetting_green_predictor(shape):
+    """``tests.device.fakes:green_predictor`` that resets the emulated sensor's board at ``RESET_AT["frame"]``."""
+    from tests.device.fakes import green_predictor
+
+    predict, calls = green_predictor(shape), [0]
+
+    def resetting(frame):
+        calls[0] += 1
+        if calls[0] == RESET_AT["frame"]:
+            find_board(RESET_AT["url"]).reset()
+        return predict(frame)
+
+    return resetting
+
+
+def test_a_reset_of_the_emulated_sensors_board_is_watched_as_a_real_boards(tmp_path, capsys, monkeypatch, caplog):
+    """The emulated sensor's in-process board was not watched: after its reset the twin's frames were dark (it
+    renders what the board latched) and their maps were saved without a word, exit 0. Now as a real board: one
+    warning, the pattern relit, the dark frames dropped and counted, every saved frame lit."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    url = "nlipsemu://live-reset"
+    monkeypatch.setitem(RESET_AT, "url", url)
+    monkeypatch.setitem(RESET_AT, "frame", 3)
+    maps = tmp_path / "maps"
+    predictor = ["--predictor", "tests.device.test_live_emulated:resetting_green_predictor", "--no-window"]
+    assert main(["live", "--port", url, *predictor, *SMALL, "--save", str(maps)]) == 0
+    err = capsys.readouterr().err
+    ours = [r.getMessage() for r in caplog.records if "reset during the stream" in r.getMessage()]
+    assert len(ours) == 1 and ours[0].startswith(f"{url}: the LED board reset during the stream ("), ours
+    (summary,) = [line for line in err.splitlines() if line.startswith("8 frames in")]
+    assert summary.endswith("; 2 more dropped, read while the LED board had reset"), summary  # the camera's latency
+    green = _saved_depth(maps)
+    assert len(green) == 8 and min(g.mean() for g in green) > 1.0  # every frame lit by the tri-colour LEDs

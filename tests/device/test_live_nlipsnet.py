@@ -1,4 +1,7 @@
-"""`nlips live --emulate --model`: an NLiPsNet model file streamed on the emulated sensor."""
+"""`nlips live --emulate --model` and `nlips infer` streams: an NLiPsNet model file on the emulated sensor, a camera
+stand-in or recorded frames, with the LED board watched for resets."""
+
+import json
 
 import numpy as np
 import pytest
@@ -114,7 +117,9 @@ def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_li
     reference, tmp_path, capsys, monkeypatch
 ):
     """`nlips infer --camera FRAMES --port PORT` whose board is pulled mid-stream: the final lights-off failed and
-    its error replaced the summary and stream.json of the frames inferred. Now they come first, then one line."""
+    its error replaced the summary and stream.json of the frames inferred. Now they come first, then one line. Since
+    s38 the board is watched at every frame of a folder too (its frames were decoded past the watch), so the stream
+    ends at the read after the unplug, as `nlips live`'s does (tests/device/test_lights_out.py): 1 frame, not 3."""
     import cv2
 
     from nlipscalib.device.controller import LedController
@@ -138,11 +143,123 @@ def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_li
     assert main(["infer", str(model), "--camera", str(frames), "--port", board.url, "--out", str(out)]) == 2
     captured = capsys.readouterr()  # the summary (on stderr since 2026-12-06: stdout holds the --out folder), then
     said = captured.err.splitlines()  # the error, last
-    assert any(line.startswith("3 frames in ") for line in said), said
+    assert any(line.startswith("1 frames in ") for line in said), said
     lines = [line for line in said if line.startswith("nlips ")]
     assert (
         said[-1] == lines[0]
         and len(lines) == 1
         and lines[0].startswith(f"nlips infer: error: {board.url}: the board disconnected (")
     ), lines
-    assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 3
+    assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 1
+
+
+def _infer_watched(monkeypatch, reset_on_call=None):
+    """Record the level of every frame ``nlips infer`` hands NLiPsNet (and reset ``reset_on_call = (board, k)``'s
+    board as it takes its k-th frame, after the read that asked the board)."""
+    from nlipscalib.device.live_leds import frame_level
+    from nlipscalib.learn.infer import Predictor
+
+    levels, real_predict = [], Predictor.predict_stored
+
+    def predict(self, frame, *args, **kwargs):
+        levels.append(frame_level(frame))
+        if reset_on_call is not None and len(levels) == reset_on_call[1]:
+            reset_on_call[0].reset()
+        return real_predict(self, frame, *args, **kwargs)
+
+    monkeypatch.setattr(Predictor, "predict_stored", predict)
+    return levels
+
+
+@pytest.mark.parametrize("announced", [True, False])
+def test_infer_from_a_camera_watches_the_board_as_live_does(
+    reference, tmp_path, capsys, monkeypatch, caplog, announced
+):
+    """`nlips infer --camera N --port PORT` shares `nlips live`'s watch: a board reset mid-stream (its banner seen,
+    or lost and found by the dark frames) is one warning, the pattern relit, no dark frame inferred, the dropped
+    ones counted in the summary, exit 0."""
+
+    from nlipscalib.device import camera as device_camera
+
+    from .test_live_board_reset import LivePinCamera, VirtualUnder
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    board = VirtualUnder()
+
+    def reset(reads: int) -> bool:
+        if reads == 4:
+            board.board.reset(banner=announced)
+        return False
+
+    camera = LivePinCamera(board, reset)
+    monkeypatch.setattr(device_camera, "open_source", lambda *args, **kwargs: camera)
+    levels = _infer_watched(monkeypatch)
+    out = tmp_path / "out"
+    args = ["infer", str(model), "--camera", "0", "--port", board.url, "--max-frames", "6", "--out", str(out)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    reason = "it printed its boot banner" if announced else "it no longer knows the session"
+    ours = [r.getMessage() for r in caplog.records if "reset during the stream" in r.getMessage()]
+    assert len(ours) == 1 and ours[0].startswith(f"{board.url}: the LED board reset during the stream ({reason})")
+    (summary,) = [line for line in err.splitlines() if line.startswith("6 frames in")]
+    assert summary.endswith("; 1 more dropped, read while the LED board had reset"), summary
+    assert len(levels) == 6 and min(levels) > 0.5 * max(levels), levels  # no dark frame reached the network
+    assert len(list(out.glob("frame_*.npz"))) == 6 and not board.latched().any()
+    assert json.loads((out / "stream.json").read_text(encoding="utf-8"))["dropped"] == 1
+
+
+def test_infer_from_recorded_frames_with_a_port_keeps_every_frame_through_a_reset(
+    reference, tmp_path, capsys, monkeypatch, caplog
+):
+    """`nlips infer --camera FOLDER --port PORT`: the folder's frames were decoded ahead on threads straight from
+    their files, past the watch, so a reset was found only by the LEDs' OFF at the end: the driver's "... restored
+    to the last acknowledged colours; retake any frame captured since the previous command", exit 2. Now the board
+    is watched at every frame: relit with one warning, and the recorded frames (not lit by it) all kept, exit 0."""
+    import cv2
+
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.ascontiguousarray(reference.tricolor[..., ::-1]))
+    board = VirtualBoard(12)
+    levels = _infer_watched(monkeypatch, (board, 1))
+    out = tmp_path / "out"
+    assert main(["infer", str(model), "--camera", str(frames), "--port", board.url, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert (
+        f"{board.url}: the LED board reset during the stream (it printed its boot banner); the tri-colour pattern is "
+        "lit again (the recorded frames are all kept: it does not light them)"
+    ) in caplog.text, caplog.text
+    assert len(levels) == 3 and len(list(out.glob("frame_*.npz"))) == 3 and "dropped" not in err
+    assert not board.latched.any()
+
+
+def test_infer_says_a_reset_found_as_the_stream_ended_as_live_says_it(reference, tmp_path, capsys, monkeypatch):
+    """Found by the LEDs' OFF after the last frame, `nlips infer` said the driver's "... have been restored to the
+    last acknowledged colours; retake any frame captured since the previous command": the LEDs were off, and no
+    frame was to be retaken. Now what happened and what became of the frames, after the summary, exit 2."""
+    from nlipscalib.device import camera as device_camera
+
+    from .test_live_board_reset import LivePinCamera, VirtualUnder
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    board = VirtualUnder()
+    camera = LivePinCamera(board, lambda reads: False)
+    monkeypatch.setattr(device_camera, "open_source", lambda *args, **kwargs: camera)
+    _infer_watched(monkeypatch, (board, 4))
+    out = tmp_path / "out"
+    args = ["infer", str(model), "--camera", "0", "--port", board.url, "--max-frames", "4", "--out", str(out)]
+    assert main(args) == 2
+    said = capsys.readouterr().err.splitlines()
+    assert any(line.startswith("4 frames in ") for line in said), said
+    assert said[-1] == (
+        f"nlips infer: error: {board.url}: the LED board reset as the stream ended, after its last frame (it printed "
+        "its boot banner; found as the LEDs were switched off): its 4 frames were each read with the board found lit "
+        "and none dark, and are kept; the LEDs are off; a board that resets as its LEDs light is often browning out "
+        "(the LEDs powered from the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in the nlipscalib "
+        "source distribution or repository)"
+    )
+    assert (out / "stream.json").is_file() and not board.latched().any()
