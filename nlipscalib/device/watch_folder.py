@@ -12,11 +12,11 @@ taken when it is whole:
   modification time unchanged for :data:`SETTLE_S` -- except, where closes are reported, a file modified and not
   closed since (a writer that paused mid-file).
 
-A file whose bytes change after it was read is read again (a camera that rewrites ``latest.png``); an unchanged one
-never is. Files that are not images (by suffix), images that cannot be decoded or have another size than the
-model's are skipped with a warning (the first few in full, then counted: ``progress.RepeatedWarning``) and the watch
-goes on; hidden files and usual temporaries (``.tmp``, ``.part``, ``~``) are a writer's work in progress and pass
-without a word.
+A file written again after it was read (its size, modification time or inode changed: a camera that rewrites
+``latest.png``) is read again; an unchanged one never is. Files that are not images (by suffix), images that cannot
+be decoded or have another size than the model's are skipped with a warning (the first few in full, then counted:
+``progress.RepeatedWarning``) and the watch goes on; hidden files and usual temporaries (``.tmp``, ``.part``, ``~``)
+are a writer's work in progress and pass without a word.
 """
 
 from __future__ import annotations
@@ -385,23 +385,27 @@ def _in_progress(name: str) -> bool:
     return name.startswith(".") or name.lower().endswith(TEMPORARY_SUFFIXES)
 
 
-def network_file_system(folder: str | Path) -> str | None:
-    """The type of the file system ``folder`` is on when it is one of :data:`NETWORK_FILE_SYSTEMS` (Linux's
-    /proc/self/mountinfo), else None (also where there is no such file)."""
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        lines = Path("/proc/self/mountinfo").read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError:
-        return None
+def network_file_system(folder: str | Path, mountinfo: str | None = None) -> str | None:
+    """The type of the file system ``folder`` is on when it is one of :data:`NETWORK_FILE_SYSTEMS`, else None.
+
+    ``mountinfo``: the text of Linux's /proc/self/mountinfo (read when None; None is returned where there is none:
+    other systems, where the observer's own events are used)."""
+    if mountinfo is None:
+        if not sys.platform.startswith("linux"):
+            return None
+        try:
+            mountinfo = Path("/proc/self/mountinfo").read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            return None
     where = os.path.realpath(folder)
     best, kind = "", None
-    for line in lines:
-        fields = line.split(" - ", 1)
-        if len(fields) != 2 or len(fields[0].split()) < 5 or not fields[1].split():
+    for line in mountinfo.splitlines():  # "36 35 98:0 /mnt1 /mnt/point rw,noatime master:1 - nfs4 server:/x rw"
+        mine, _, theirs = line.partition(" - ")
+        fields = mine.split()
+        if len(fields) < 5 or not theirs.split():
             continue
-        mount = fields[0].split()[4].replace("\\040", " ")
+        mount = fields[4].replace("\\040", " ")  # the kernel's escape of a space in a mount point
         inside = where == mount or where.startswith(mount.rstrip("/") + "/")
         if inside and len(mount) >= len(best):
-            best, kind = mount, fields[1].split()[0]
+            best, kind = mount, theirs.split()[0]
     return kind if kind in NETWORK_FILE_SYSTEMS else None
