@@ -1,0 +1,151 @@
+"""``nlips infer MODEL --watch FOLDER`` against the same frames streamed from a folder (``--camera FOLDER``), whole
+commands, interleaved.
+
+Watch: the command started on an empty folder; once it says it is watching, a writer drops ``--frames`` copies of one
+tri-colour PNG into the folder, each written under a hidden temporary name and renamed into place, as camera
+programs do, either as fast as it can (throughput) or every ``--period`` s (latency: from each rename to its
+``frame_NNNNNN.npz`` being written, from the files' modification times); ``--max-frames`` ends the command.
+Folder: ``nlips infer MODEL --camera FOLDER`` on a folder already holding the same frames (decoded ahead on several
+threads). Both with ``--out`` (normal-map PNG and npz a frame: the stream's outputs). Each process runs as a user's
+does (``common.nlips_process``' environment: bytecode written under a prefix of its own, its own disk cache).
+
+Run: .venv/bin/python benchmarks/bench_infer_watch.py --model M.pt --frame PRESS/tricolor.png
+     [--frames 30] [--pairs 3] [--period 0.2]
+Prints Markdown; the results are in benchmarks/RESULTS.md (s38-inferwatch).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import resource
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STREAM_RATE = re.compile(r"(\d+) frames in ([0-9.]+) s: ([0-9.]+) fps")
+PREDICTOR = re.compile(r"= ([0-9.]+) frames/s for the predictor alone")
+
+
+def _env(tag: str) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    env.update(PYTHONPATH=path, PYTHONPYCACHEPREFIX=f"/tmp/bench-{tag}-pyc", NLIPS_CACHE_DIR=f"/tmp/bench-{tag}-cache")
+    return env
+
+
+def _run(args: list[str], tag: str, writer=None) -> dict:
+    """One ``nlips`` process: wall s, user+sys s, its stderr; ``writer(start_line_seen)`` runs beside it once the
+    command says it is watching (``--watch``)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", *args],
+        cwd=tempfile.gettempdir(),
+        env=_env(tag),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines, thread = [], None
+    for line in proc.stderr:
+        lines.append(line)
+        if writer is not None and thread is None and line.startswith("watching "):
+            thread = threading.Thread(target=writer)
+            thread.start()
+    proc.wait()
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if thread is not None:
+        thread.join()
+    if proc.returncode != 0:
+        raise SystemExit(f"nlips {' '.join(args)}: exit {proc.returncode}\n{''.join(lines)}")
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return {"wall": wall, "cpu": cpu, "said": "".join(lines)}
+
+
+def _writer(frame: Path, folder: Path, n: int, period: float, landed: list[float]):
+    def write() -> None:
+        for i in range(n):
+            if period:
+                time.sleep(period)
+            tmp = folder / f".f{i:04d}.png.part"
+            shutil.copyfile(frame, tmp)
+            os.replace(tmp, folder / f"f{i:04d}.png")
+            landed.append(os.stat(folder / f"f{i:04d}.png").st_mtime)
+
+    return write
+
+
+def one(side: str, model: Path, frame: Path, n: int, period: float, work: Path) -> dict:
+    shutil.rmtree(work, ignore_errors=True)
+    work.mkdir(parents=True)
+    frames, out = work / "frames", work / "out"
+    frames.mkdir()
+    if side == "folder":
+        for i in range(n):
+            shutil.copyfile(frame, frames / f"f{i:04d}.png")
+        result = _run(["infer", str(model), "--camera", str(frames), "--out", str(out)], "s38-inferwatch-folder")
+        landed = []
+    else:
+        landed: list[float] = []
+        writer = _writer(frame, frames, n, period if side == "watch paced" else 0.0, landed)
+        args = ["infer", str(model), "--watch", str(frames), "--out", str(out), "--max-frames", str(n)]
+        result = _run(args, "s38-inferwatch-watch", writer)
+    rate = STREAM_RATE.search(result["said"])
+    predictor = PREDICTOR.search(result["said"])
+    result |= {"frames": int(rate.group(1)), "stream_fps": float(rate.group(3))}
+    result["predictor_fps"] = float(predictor.group(1)) if predictor else float("nan")
+    if landed:  # each frame's arrays written, against its file's landing (both the file system's clock)
+        saved = [os.stat(out / f"frame_{i:06d}.npz").st_mtime for i in range(n)]
+        result["latency_ms"] = statistics.median(1e3 * (s - w) for s, w in zip(saved, landed))
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", type=Path, required=True)
+    ap.add_argument("--frame", type=Path, required=True, help="a 16-bit tri-colour PNG of the model's size")
+    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--period", type=float, default=0.2, help="seconds between frames of the paced writer")
+    args = ap.parse_args()
+    sides = ("folder", "watch", "watch paced")
+    runs = {side: [] for side in sides}
+    with tempfile.TemporaryDirectory(prefix="bench-inferwatch-") as tmp:
+        for side in sides:  # warm-up: bytecode, page and disk caches
+            one(side, args.model.resolve(), args.frame.resolve(), args.frames, args.period, Path(tmp) / "w")
+        for _ in range(args.pairs):
+            for side in sides:
+                runs[side].append(
+                    one(side, args.model.resolve(), args.frame.resolve(), args.frames, args.period, Path(tmp) / "w")
+                )
+    load = os.getloadavg()
+
+    def spread(values: list[float], digits: int = 2) -> str:
+        return f"{statistics.median(values):.{digits}f} [{min(values):.{digits}f}-{max(values):.{digits}f}]"
+
+    print(
+        f"{args.frames} frames of {args.frame} a run, n = {args.pairs} a side after one warm-up each, interleaved; "
+        f"load average at the end {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}\n"
+    )
+    print("| mode | process wall s | user+sys s | stream frames/s | predictor frames/s | median latency ms |")
+    print("|---|---|---|---|---|---|")
+    for side in sides:
+        r = runs[side]
+        latency = spread([x["latency_ms"] for x in r], 0) if "latency_ms" in r[0] else "-"
+        print(
+            f"| {side} | {spread([x['wall'] for x in r])} | {spread([x['cpu'] for x in r])} | "
+            f"{spread([x['stream_fps'] for x in r], 1)} | {spread([x['predictor_fps'] for x in r], 1)} | {latency} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
