@@ -21,6 +21,7 @@ are a writer's work in progress and pass without a word.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import itertools
@@ -80,6 +81,9 @@ NETWORK_FILE_SYSTEMS = frozenset(
 )
 """Linux file systems whose files another machine (or the VM's host) writes without a local inotify event: watched by
 polling (/proc/self/mountinfo's type of the folder's mount)."""
+READ_MEMORY = 4096
+"""Files whose version read last is kept (:meth:`WatchedFolder._remember`): a rewritten one of them is told from an
+unchanged one even by a rescan."""
 EXISTING = ("skip", "infer")
 """What :class:`WatchedFolder` does with the images already in the folder when it starts (``--existing``)."""
 
@@ -150,7 +154,10 @@ class WatchedFolder(FrameSource):
         """Files skipped: not images, not readable, or of another size."""
         self._events: queue.SimpleQueue = queue.SimpleQueue()
         self._landing: dict[str, _Landing] = {}
-        self._read: dict[str, tuple[int, int, int]] = {}  # each file's version read (or skipped) last
+        # the versions read (or skipped) last of the latest READ_MEMORY files; older ones are known by their
+        # modification time alone (:meth:`_remember`), which only a rescan asks
+        self._read: collections.OrderedDict[str, tuple[int, int, int]] = collections.OrderedDict()
+        self._forgotten_ns = -1  # the newest modification time of a file read and forgotten, or skipped at the start
         self._named: set[str] = set()  # files not images, warned about once each
         self._order = itertools.count()
         self._warnings = {
@@ -168,16 +175,16 @@ class WatchedFolder(FrameSource):
 
     # ------------------------------------------------------------------ setting up
     def _start(self, existing: str) -> int:
-        """Note the images already there: skipped (their present version counted as read) or landing, in name
-        order. Done before the observer starts, so an image written meanwhile is seen as new (its event, or its
-        signature changed since)."""
+        """Note the images already there: skipped (none newer than them is taken for one of them: only a rescan
+        would look at them again, :meth:`_rescan`) or landing, in name order. Done before the observer starts, so
+        an image written meanwhile is seen as new (by its event)."""
         names = sorted(e.name for e in os.scandir(self.folder) if e.is_file() and _is_image(e.name))
         for name in names:
             path = str(self.folder / name)
             if existing == "skip":
                 signature = _signature(path)
                 if signature is not None:
-                    self._read[path] = signature
+                    self._forgotten_ns = max(self._forgotten_ns, signature[1])
             else:
                 self._landing[path] = _Landing(next(self._order))
         return len(names)
@@ -303,9 +310,27 @@ class WatchedFolder(FrameSource):
         return landing
 
     def _rescan(self) -> None:
+        """Events were lost (inotify's queue overflowed): every image not read yet lands again; one modified no
+        later than the newest file forgotten (:meth:`_remember`) or skipped at the start is taken for read."""
+        log.warning("%s: file events were lost (too many at once); looking at every file again", self.folder)
         for entry in os.scandir(self.folder):
-            if entry.is_file() and _is_image(entry.name) and entry.path not in self._landing:
-                self._land(entry.path)
+            if not (entry.is_file() and _is_image(entry.name)) or entry.path in self._landing:
+                continue
+            signature = _signature(entry.path)
+            if signature is not None and entry.path not in self._read and signature[1] <= self._forgotten_ns:
+                continue
+            self._land(entry.path)
+
+    def _remember(self, path: str, signature: tuple[int, int, int]) -> None:
+        """The version of ``path`` just read (or skipped), so that it is not read again; of the latest
+        :data:`READ_MEMORY` files only, the others known by the newest modification time among them.
+
+        Why bounded: a watch of hours keeps no entry per frame (30 frames/s for 8 hours: 864,000 files, ~170 MB)."""
+        self._read[path] = signature
+        self._read.move_to_end(path)
+        while len(self._read) > READ_MEMORY:
+            _, old = self._read.popitem(last=False)
+            self._forgotten_ns = max(self._forgotten_ns, old[1])
 
     def _whole(self) -> list[str]:
         """The landing files whole now, in the order they landed (name order among equals); those gone, or read in
@@ -330,7 +355,7 @@ class WatchedFolder(FrameSource):
         from ..core.imageio import read_image
 
         landing = self._landing.pop(path)
-        self._read[path] = landing.signature
+        self._remember(path, landing.signature)
         try:
             image = read_image(path)
             if image is None:

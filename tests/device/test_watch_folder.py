@@ -177,3 +177,22 @@ def test_network_file_systems_are_told_by_the_folders_mount():
     assert network_file_system("/mnt/labs", mountinfo) is None  # not under /mnt/lab
     assert network_file_system("/mnt/my share/x", mountinfo) == "cifs"
     assert network_file_system("/home/u/frames", mountinfo) is None
+
+
+def test_a_long_watch_remembers_a_bounded_number_of_files_and_a_rescan_reads_none_again(folder, monkeypatch):
+    """Each file read is remembered (not to be read again) among the latest READ_MEMORY only: a watch of hours keeps
+    no entry per frame. Lost events (inotify's queue overflowed) make the watch look at every file again: the files
+    read before, remembered or forgotten, and those skipped at the start are not read again; a new one is."""
+    from nlipscalib.device import watch_folder
+
+    monkeypatch.setattr(watch_folder, "READ_MEMORY", 2)
+    write_png16(folder / "before.png", _frame(9))
+    with WatchedFolder(folder, SHAPE) as source:
+        for i in range(5):
+            _renamed_into_place(folder, f"f{i}.png", i + 1)
+        assert [v for _, v in _read_all(source, 5)] == [1, 2, 3, 4, 5]
+        assert len(source._read) == 2
+        source._rescan()
+        _renamed_into_place(folder, "new.png", 6)
+        assert _read_all(source, 1) == [("new.png", 6)]
+        assert set(source._landing) <= {str(folder / "new.png")}
