@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 STREAM_RATE = re.compile(r"(\d+) frames in ([0-9.]+) s: ([0-9.]+) fps")
 PREDICTOR = re.compile(r"= ([0-9.]+) frames/s for the predictor alone")
 
@@ -104,6 +105,11 @@ def one(side: str, model: Path, frame: Path, n: int, period: float, work: Path) 
     result |= {"frames": int(rate.group(1)), "stream_fps": float(rate.group(3))}
     result["predictor_fps"] = float(predictor.group(1)) if predictor else float("nan")
     if landed:  # each frame's arrays written, against its file's landing (both the file system's clock)
+        from nlipscalib.cli.infer import WATCHED_FILES
+
+        named = (out / WATCHED_FILES).read_text(encoding="utf-8").splitlines()[1:]
+        if [line.split("\t")[1] for line in named] != [f"f{i:04d}.png" for i in range(n)]:
+            raise SystemExit(f"{out / WATCHED_FILES}: not the frames in the order written")
         saved = [os.stat(out / f"frame_{i:06d}.npz").st_mtime for i in range(n)]
         result["latency_ms"] = statistics.median(1e3 * (s - w) for s, w in zip(saved, landed))
     return result
@@ -128,6 +134,9 @@ def main() -> None:
                     one(side, args.model.resolve(), args.frame.resolve(), args.frames, args.period, Path(tmp) / "w")
                 )
     load = os.getloadavg()
+    from common import machine
+
+    print(f"machine: {machine()}")
 
     def spread(values: list[float], digits: int = 2) -> str:
         return f"{statistics.median(values):.{digits}f} [{min(values):.{digits}f}-{max(values):.{digits}f}]"
