@@ -9,8 +9,14 @@ Folder: ``nlips infer MODEL --camera FOLDER`` on a folder already holding the sa
 threads). Both with ``--out`` (normal-map PNG and npz a frame: the stream's outputs). Each process runs as a user's
 does (``common.nlips_process``' environment: bytecode written under a prefix of its own, its own disk cache).
 
+Reading alone (``--read-only``, in process, no model): the CPU time and wall a frame of ``WatchedFolder.read`` (its
+observer thread's events, the settle check, the decoding) for frames renamed into the folder all at once, against
+``FolderSource.frame_at`` (the decoding alone) of the same files; and, with frames renamed in one every ``--period``
+s, the time from each rename to ``read`` returning its frame.
+
 Run: .venv/bin/python benchmarks/bench_infer_watch.py --model M.pt --frame PRESS/tricolor.png
      [--frames 30] [--pairs 3] [--period 0.2]
+     .venv/bin/python benchmarks/bench_infer_watch.py --read-only --frame PRESS/tricolor.png [--frames 30] [--pairs 5]
 Prints Markdown; the results are in benchmarks/RESULTS.md (s38-inferwatch).
 """
 
@@ -115,14 +121,77 @@ def one(side: str, model: Path, frame: Path, n: int, period: float, work: Path) 
     return result
 
 
+def read_only(frame: Path, n: int, rounds: int, period: float) -> None:
+    """Reading alone: ``WatchedFolder.read`` against ``FolderSource.frame_at`` (see the module's docstring)."""
+    from nlipscalib.device.camera import FolderSource
+    from nlipscalib.device.watch_folder import WatchedFolder
+
+    rows = {"folder (decode)": [], "watch (events + decode)": []}
+    delays = []
+    with tempfile.TemporaryDirectory(prefix="bench-inferwatch-read-") as tmp:
+        staged, watched = Path(tmp) / "staged", Path(tmp) / "watched"
+        for r in range(rounds + 1):  # round 0: warm-up
+            for folder in (staged, watched):
+                shutil.rmtree(folder, ignore_errors=True)
+                folder.mkdir()
+            for i in range(n):
+                shutil.copyfile(frame, staged / f"f{i:04d}.png")
+            source = FolderSource(staged)
+            c0, t0 = time.process_time(), time.perf_counter()
+            for i in range(n):
+                source.frame_at(i)
+            folder_times = ((time.process_time() - c0) / n, (time.perf_counter() - t0) / n)
+            with WatchedFolder(watched, source.shape) as watch:
+                c0, t0 = time.process_time(), time.perf_counter()
+                for i in range(n):
+                    os.replace(staged / f"f{i:04d}.png", watched / f"f{i:04d}.png")
+                for _ in range(n):
+                    watch.read()
+                watch_times = ((time.process_time() - c0) / n, (time.perf_counter() - t0) / n)
+                if period:  # one frame at a time: from its rename to read() returning it
+                    for i in range(n):
+                        tmp_file = watched / f".p{i:04d}.part"
+                        shutil.copyfile(frame, tmp_file)
+                        time.sleep(period)
+                        t0 = time.perf_counter()
+                        os.replace(tmp_file, watched / f"p{i:04d}.png")
+                        watch.read()
+                        if r:
+                            delays.append(time.perf_counter() - t0)
+            if r:
+                rows["folder (decode)"].append(folder_times)
+                rows["watch (events + decode)"].append(watch_times)
+
+    def spread(values: list[float]) -> str:
+        ms = [1e3 * v for v in values]
+        return f"{statistics.median(ms):.2f} [{min(ms):.2f}-{max(ms):.2f}]"
+
+    load = os.getloadavg()
+    print(
+        f"{n} frames of {frame} a round, {rounds} rounds after a warm-up; load average at the end "
+        f"{load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f}\n"
+    )
+    print("| reading | CPU ms a frame | wall ms a frame |\n|---|---|---|")
+    for side, times in rows.items():
+        print(f"| {side} | {spread([c for c, _ in times])} | {spread([w for _, w in times])} |")
+    if delays:
+        print(f"\nOne frame every {period} s: rename to read() returning it, ms: {spread(delays)} (n = {len(delays)})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", type=Path, required=True)
+    ap.add_argument("--model", type=Path, help="model file (not with --read-only)")
+    ap.add_argument("--read-only", action="store_true", help="reading alone, in process, no model")
     ap.add_argument("--frame", type=Path, required=True, help="a 16-bit tri-colour PNG of the model's size")
     ap.add_argument("--frames", type=int, default=30)
     ap.add_argument("--pairs", type=int, default=3)
     ap.add_argument("--period", type=float, default=0.2, help="seconds between frames of the paced writer")
     args = ap.parse_args()
+    if args.read_only:
+        read_only(args.frame.resolve(), args.frames, args.pairs, args.period)
+        return
+    if args.model is None:
+        ap.error("--model is required (or --read-only)")
     sides = ("folder", "watch", "watch paced")
     runs = {side: [] for side in sides}
     with tempfile.TemporaryDirectory(prefix="bench-inferwatch-") as tmp:
