@@ -24,8 +24,10 @@ from nlipscalib.core.imageio import read_png16, write_png16  # noqa: E402
 
 from ..processes import as_from_a_terminal  # noqa: E402
 
-GIVE_UP_S = 120.0
-"""A watch still waiting then has missed a file: the test ends it (Ctrl-C) and fails on what it counts."""
+GIVE_UP_S = 600.0
+"""A watch still waiting then has missed a file: the test ends it (Ctrl-C) and fails on what it counts. Generous: the
+limit counts the command's start too (importing torch and loading the model took over 120 s on the 2-core VM at load
+29, s38)."""
 REPO = Path(__file__).resolve().parents[2]
 
 

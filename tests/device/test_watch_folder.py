@@ -19,7 +19,7 @@ from nlipscalib.device.live import StopLive  # noqa: E402
 from nlipscalib.device.watch_folder import WatchedFolder, network_file_system  # noqa: E402
 
 SHAPE = (12, 16)
-GIVE_UP_S = 60.0
+GIVE_UP_S = 300.0
 """A wait that has not ended by then is a failure (an event that never came), not a hang."""
 
 
