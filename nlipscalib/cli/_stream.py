@@ -248,15 +248,20 @@ def open_frames(
     tone_curve: np.ndarray | None = None,
     stats: LiveStats | None = None,
     read_ahead: bool = False,
+    shape: tuple[int, int] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> tuple[FrameSource, Callable[[int], None] | None]:
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
     ``camera_response``: the model's (``Predictor.camera_response``); a live camera is asked for gamma 1.0 only
     when "linear", else its own curve is left on, as the calibration's captures had it and the model undoes it.
     ``tone_curve``: that curve's table (``Predictor.tone_curve``), undone on each camera or file frame as it is
     converted (``device.camera.to_stored``: an 8-bit frame in one 256-entry lookup; the source's ``tone_curve``
-    says so, and the predictor is then told its frames are in light: ``MismatchWatch.in_light``).
+    says so, and the predictor is then told its frames are in light: ``MismatchWatch.in_light``). ``shape``: (H, W)
+    of the model's frames, which a watched folder's files must have (``--watch``: there is no first frame to go by);
+    ``stop``: asked while a watched folder waits for its next file (SIGTERM's flag: ``SigtermEndsStream``).
 
-    The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
+    The emulated sensor when ``--emulate``, a watched folder (``device.watch_folder``) when ``--watch``, else
+    ``--camera`` (camera, folder or video) with the LED board
     at ``--port`` lit in the tri-colour pattern (``nlipsemu://ID``: a virtual board of that id, started here
     when this process has none).
 
@@ -274,12 +279,20 @@ def open_frames(
 
     if args.emulate:
         return _emulated_source(args, stack, loop=loop or args.max_frames is not None, stats=stats)
-    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
-    settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
-    source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
+    if getattr(args, "watch", None):  # `nlips infer --watch FOLDER` (nlips live has no such flag)
+        from ..device.watch_folder import WatchedFolder
+
+        poll = True if args.poll else None  # None: polled by itself on a network file system
+        watched = WatchedFolder(args.watch, shape, args.existing or "skip", poll, tone_curve=tone_curve, stop=stop)
+        source = stack.enter_context(watched)  # read as each file lands: nothing to decode ahead
+    else:
+        camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
+        settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
+        source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
+    # a watched folder's files, like a recording's, were not lit by this board at the moment they were read
     live = getattr(source, "live", False)
-    if read_ahead and not live:  # a video, sequence or folder: decoded while the frame before is inferred
-        from ..device.live import ReadAhead
+    if read_ahead and not live and not getattr(args, "watch", None):  # a video, sequence or folder: decoded while
+        from ..device.live import ReadAhead  # the frame before is inferred
 
         source = stack.enter_context(ReadAhead(source))
     if args.port:

@@ -74,6 +74,7 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
     "infer": (
         ("nlips infer model.pt session", "every press of a folder: PRESS/nlipsnet"),
         ("nlips infer model.pt frames/ --out results --ply", "tri-colour image files, with point clouds"),
+        ("nlips infer model.pt --watch incoming/ --out results", "frames as they land in a folder, until Ctrl-C"),
     ),
     "verify": (
         ("nlips verify session", "every byte of every press against its checksums.json"),

@@ -1,8 +1,9 @@
 """``nlips infer MODEL INPUT...``: normals, depth on the dome and point clouds from tri-colour frames with NLiPsNet.
 
 Inputs are press folders (PRESS/nlipsnet/ in the reconstruction format), tri-colour PNG files or folders
-of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``) or the
-emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
+of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``), the
+emulated sensor (``--emulate``) or a folder watched for frames as they land (``--watch``, device/watch_folder.py).
+Streams are opened and run exactly as ``nlips live`` runs them
 (cli/_stream.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
 frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. A press's or frame's
@@ -41,6 +42,7 @@ if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are 
     from ..core.claims import Owner
     from ..core.surface_files import GroundTruth
     from ..device.live import FrameReader, LiveStats
+    from ..device.watch_folder import WatchedFolder
     from ..learn.infer import Frame, Predictor
     from ..learn.watch import MismatchWatch
 
@@ -65,6 +67,11 @@ FIGURES_DEFAULT = "maps"
 STILLS_WARNED_IN_FULL = 3
 """Inputs of ``nlips infer`` (frames, presses) unlike the calibration's reference that are warned about in full,
 each naming its file; later ones are counted (``progress.RepeatedWarning``; each with -v)."""
+WATCHED = "watched"
+"""What :func:`_stream_input` returns for ``--watch FOLDER``."""
+WATCHED_FILES = "frames.tsv"
+"""What a watched folder's stream with ``--out`` writes beside its frames: each saved frame's file
+(:class:`_WatchedFilesSink`)."""
 STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
 """What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
@@ -142,6 +149,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(plus a matplotlib summary sheet), none. A stream keeps its frames' normal maps (--out)",
     )
     p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
+    p.add_argument(
+        "--watch",
+        metavar="FOLDER",
+        help="stream the frames written into FOLDER as they land (a camera's software, or another machine over a "
+        "shared folder): each image is read once whole (renamed into place, closed after writing, or unchanged for "
+        "1 s), in the order they land, until Ctrl-C or --max-frames; other files, unreadable images and images of "
+        "another size are skipped with a warning. With --out, frames.tsv names each saved frame's file",
+    )
+    p.add_argument(
+        "--existing",
+        choices=("skip", "infer"),
+        help="--watch: the images already in FOLDER when the watch starts are skipped (default) or inferred first, "
+        "in name order",
+    )
+    p.add_argument(
+        "--poll",
+        action="store_true",
+        help="--watch: list FOLDER every 0.25 s instead of waiting for the system's file events (chosen by itself "
+        "on NFS, SMB and VM-shared folders, whose writes from another machine raise no event here)",
+    )
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
     add_allow_edited(p, "infer the tri-colour frame of")
@@ -154,7 +181,7 @@ def stopped(args: argparse.Namespace) -> str | None:
     which run again starts over; None (finished work is kept, run again to resume) for presses and frames."""
     from ..device.virtual_board import url_board_id
 
-    if args.camera is not None or args.emulate:  # --port nlipsemu://ID alone sets emulate once run starts
+    if args.camera is not None or args.emulate or args.watch:  # --port nlipsemu://ID alone sets emulate in run
         return STREAM_STOPPED
     if not args.inputs and url_board_id(args.port) is not None:  # ... and before
         return STREAM_STOPPED
@@ -165,13 +192,17 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
     from ..core.errors import ConfigError
 
-    if not args.inputs:
+    if not args.inputs and not args.watch:
         emulate_behind_port(args)  # --port nlipsemu://ID alone: the emulated sensor, as nlips live streams it
     stream_input = _stream_input(args)
     if stream_input is None and not args.inputs:
         raise ConfigError(
-            "give inputs (presses, PNG frames or a video), --camera SPEC, --emulate SCENE or --port nlipsemu://ID"
+            "give inputs (presses, PNG frames or a video), --camera SPEC, --emulate SCENE, --watch FOLDER or --port "
+            "nlipsemu://ID"
         )
+    for dest in typed(args, ("existing",)) + (["poll"] if args.poll else []):
+        if not args.watch:
+            raise ConfigError(f"{option(dest)} is for --watch FOLDER (a folder watched for frames); drop it")
     if args.max_frames is not None:
         check_count("--max-frames", args.max_frames, minimum=1)
     if stream_input is None:  # only a stream lights the LED board, or has frames to count or skip
@@ -228,9 +259,11 @@ def _stream_input(args: argparse.Namespace):
         if ("%" in i and not Path(i).exists())  # a pattern, not a file whose name holds a % ("press 50%.png")
         or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
     ]
-    chosen = [x for x in (args.emulate and "emulated", args.camera, *videos) if x]
+    chosen = [x for x in (args.emulate and "emulated", args.camera, args.watch and WATCHED, *videos) if x]
     if len(chosen) > 1 or (chosen and len(args.inputs) > len(videos)):
-        raise ConfigError("a stream (a video, --camera or --emulate) is inferred on its own: give one at a time")
+        raise ConfigError(
+            "a stream (a video, --camera, --emulate or --watch) is inferred on its own: give one at a time"
+        )
     return chosen[0] if chosen else None
 
 
@@ -263,6 +296,18 @@ def _check_video(path: str) -> None:
         cap.release()
 
 
+def _check_watched_folder(folder: str) -> None:
+    """One line naming ``--watch``'s folder when it is missing or not a folder (before the model loads)."""
+    from pathlib import Path
+
+    from ..core.errors import CaptureError
+
+    if not Path(folder).exists():
+        raise CaptureError(f"--watch {folder}: no such folder (make it, or name the one the frames are written into)")
+    if not Path(folder).is_dir():
+        raise CaptureError(f"--watch {folder}: not a folder (--watch takes the folder the frames are written into)")
+
+
 def _run_stream(args: argparse.Namespace, what: str) -> int:
     import pathlib
 
@@ -276,11 +321,13 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
         opencv_log.setLogLevel(opencv_log.LOG_LEVEL_ERROR)
     else:
         cv2.setLogLevel(2)  # OpenCV's LOG_LEVEL_ERROR
-    video = what not in ("emulated", args.camera)
+    video = what not in ("emulated", args.camera, WATCHED)
     if video:
         _check_video(what)
         args.camera = what
-    name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
+    if what == WATCHED:  # a missing folder: one line now, before the model loads
+        _check_watched_folder(args.watch)
+    name = {"emulated": "emulated sensor", WATCHED: args.watch}.get(what, what if video else f"camera {what}")
     with held_stream_folder(args.out, "nlips infer"):  # another stream into --out: refused before the model loads
         predictor = nlipsnet_predictor(args, depth=not args.no_depth)
         if args.out:
@@ -305,10 +352,11 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     from ..core.errors import CaptureError, NlipsError
     from ..device.live import LiveStats, SaveSink, stream
     from ..learn.watch import MismatchWatch
+    from ..progress import say
     from ..report.live import NormalMapPng
     from ._stream import open_frames, reset_at_the_end, running_rate_report
 
-    stats, watch, stages, cpu0 = LiveStats(), None, None, None
+    stats, watch, stages, cpu0, watching = LiveStats(), None, None, None, False
     try:
         # a board reset found as the LEDs are switched off after the frames: said as nlips live says it
         with reset_at_the_end(args.port, stats) as ended, contextlib.ExitStack() as stack:
@@ -321,6 +369,8 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 tone_curve=predictor.tone_curve,
                 stats=stats,
                 read_ahead=True,
+                shape=predictor.shape,
+                stop=term,
             )
             in_light = getattr(source, "tone_curve", None) is not None  # the emulated sensor: linear frames
             if tuple(source.shape) != predictor.shape:
@@ -328,7 +378,8 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 raise CaptureError(
                     f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
                 )
-            if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
+            watching = args.watch is not None  # waits for files to land: never ends, reads none ahead
+            if not args.emulate and not watching and not getattr(source, "live", False):  # a video, ...: it ends
                 source = _EndsCleanly(source)  # decoded ahead on threads (open_frames's read_ahead)
             stages = _StageTimes()
             sinks = []
@@ -336,10 +387,16 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))
                 if args.ply or args.mesh:
                     sinks.append(_PlySink(args.out, args.every, args.mesh))
+                if watching:
+                    sinks.append(
+                        stack.enter_context(contextlib.closing(_WatchedFilesSink(args.out, args.every, source)))
+                    )
             elif args.ply or args.mesh:
                 log.warning("--ply without --out: no point clouds are written")
 
             watch = MismatchWatch(predictor, name, in_light=in_light)
+            if watching:
+                _say_watching(source, args.existing)
 
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
@@ -369,6 +426,8 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
         _finish_stream(args, name, predictor, stats, stages, cpu, watch, after_error=True)
         raise
     _finish_stream(args, name, predictor, stats, stages, cpu, watch)
+    if watching and source.skipped:
+        say(f"{args.watch}: {source.skipped} file(s) skipped (not images, unreadable or of another size; see above)")
     if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
         raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
     return 0
@@ -403,6 +462,48 @@ def _finish_stream(
         ply = ", .ply" if args.ply or args.mesh else ""
         print_result(args.out)
         say(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
+
+
+def _say_watching(source: WatchedFolder, existing: str) -> None:
+    """The line a watch starts with: what it waits for, what it did with the images already there, how it ends."""
+    from ..progress import say
+
+    there = source.existing
+    if not there:
+        before = ""
+    elif existing == "infer":
+        before = f"; the {there} image(s) already there first (--existing infer)"
+    else:
+        before = f"; {there} image(s) already there skipped (--existing infer infers them first)"
+    how = "listed every 0.25 s" if source.polling else "file events"
+    say(f"watching {source.folder} for frames as they land ({how}){before}; Ctrl-C ends")
+
+
+class _WatchedFilesSink:
+    """``OUT/frames.tsv``: the file each kept frame of a watched folder was read from (``frame_NNNNNN<TAB>FILE``, a
+    line a frame, written as it is saved), since the frames land in no order their names tell.
+
+    Made anew by each run, as its frames are (a stream does not resume); the watched folder's name is in
+    stream.json's ``input``."""
+
+    def __init__(self, folder: str | Path, every: int, source: WatchedFolder) -> None:
+        from pathlib import Path
+
+        self.path, self.every, self.source = Path(folder) / WATCHED_FILES, max(int(every), 1), source
+        self._file = None
+
+    def __call__(self, index: int, frame: np.ndarray, result: Frame) -> None:
+        if index % self.every:
+            return
+        if self._file is None:
+            self._file = open(self.path, "w", encoding="utf-8", newline="\n")  # open while the stream runs
+            self._file.write("frame\tfile\n")
+        self._file.write(f"frame_{index:06d}\t{self.source.current.name}\n")
+        self._file.flush()  # a line a frame, there when the frame is: a stream stopped by a kill keeps its lines
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
 
 
 class _EndsCleanly:
