@@ -59,10 +59,10 @@ def sort_presses(
     """
     judged = [r for r in (reference, *(e.get(RECORD_KEY) for e in entries)) if _judged(r)]
     if len(judged) >= 2 and all(disagrees(r) for r in judged) and len({_signature(r) for r in judged}) == 1:
-        line = session_line(where, judged[0], len(judged))
+        line = session_line(where, judged[0], len(judged), keep)
         if not keep:
             raise ConfigError(line)
-        log.warning("%s; kept (%s)", line, KEEP_OPTION)
+        log.warning("%s", line)
         return entries, []
     if disagrees(reference):
         line = f"{reference['line']}; it is the dataset's undeformed reference frame, against which every press's "
@@ -88,9 +88,10 @@ def sort_presses(
     return kept, left_out
 
 
-def session_line(where: Path, record: dict, count: int) -> str:
+def session_line(where: Path, record: dict, count: int, keep: bool = False) -> str:
     """The one line for ``count`` captures (the undeformed one among them) whose tri-colour frames all disagree
-    with their LED images as ``record`` says: what they hold, the likely cause, and what to do."""
+    with their LED images as ``record`` says: what they hold, the likely cause, and what to do (``keep``: that they
+    were kept, on request)."""
     verdict = record["verdict"]
     if verdict == "colours":
         from ..core.tricolor_check import sources_said
@@ -107,11 +108,19 @@ def session_line(where: Path, record: dict, count: int) -> str:
     else:
         how = "no exchange of two LED images mends them"
         cause = "the LED controller's tri-colour pattern, or frames written under each other's names"
-    return (
+    head = (
         f"{where}: every capture's tri-colour frame ({count}, the undeformed one's among them) disagrees with its LED "
-        f"images the same way: {how}: {cause}, for the whole session. A dataset of them would teach NLiPsNet colours "
-        f"its LED images' normals do not have: fix it and capture again, or pass {KEEP_OPTION} to build it from the "
-        "frames as captured (then every frame `nlips infer` is given must be captured alike)"
+        f"images the same way: {how}: {cause}, for the whole session"
+    )
+    if keep:
+        return (
+            f"{head}; the dataset is built from the frames as captured ({KEEP_OPTION}): every frame `nlips infer` is "
+            "given must be captured alike"
+        )
+    return (
+        f"{head}. A dataset of them would teach NLiPsNet colours its LED images' normals do not have: fix it and "
+        f"capture again, or pass {KEEP_OPTION} to build it from the frames as captured (then every frame `nlips "
+        "infer` is given must be captured alike)"
     )
 
 
