@@ -137,7 +137,9 @@ class TricolorVerdict(NamedTuple):
     few unsaturated samples, groups whose images do not tell them apart), ``unreadable`` (the frame cannot be
     read), or how it disagrees: ``colours`` (a channel holds another group's light: the camera's colour order, the
     controller's pattern), ``exchanged`` (two LED images of different groups captured in each other's place),
-    ``misfit`` (no exchanged pair mends it: another press's frame, ...)."""
+    ``misfit`` (no exchanged pair mends it: another press's frame, ...); ``said`` (the exchange found is of two LEDs
+    the caller names as shown elsewhere, ``said``: the solve's LED checks named them, and a solve that used the images
+    in the order they show is fitted by the frame)."""
     line: str | None
     """The one warning line naming the press (None when it fits, is not judged, or names a pair in ``said``)."""
     fit: TricolorFit | None = None
@@ -165,7 +167,7 @@ class TricolorVerdict(NamedTuple):
 
 DISAGREE = ("colours", "exchanged", "misfit")
 """The kinds of :class:`TricolorVerdict` that say the frame does not hold the LED images' light."""
-VERDICTS = ("fits", "not judged", "unreadable", *DISAGREE)
+VERDICTS = ("fits", "said", "not judged", "unreadable", *DISAGREE)
 """Every kind of :class:`TricolorVerdict`."""
 
 
@@ -227,7 +229,7 @@ def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: C
         return TricolorVerdict("misfit", line, fit)
     i, j = fit.exchanged
     if {i, j} <= set(said):
-        return TricolorVerdict("exchanged", None, fit)
+        return TricolorVerdict("said", None, fit)
     line = (
         f"{head}: with {names[i]} ({TRICOLOR_NAMES[groups[i]]} group) and {names[j]} ({TRICOLOR_NAMES[groups[j]]}) "
         f"exchanged it fits ({100 * fit.exchanged_misfit:.1f} %): the two images were captured in each other's place "

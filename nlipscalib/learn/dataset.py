@@ -64,7 +64,7 @@ from ..core.shell_words import shell_word
 from ..core.tolerances import FRAME_CHANNEL_DRIFT
 from ..progress import track
 from .change import RULE_VERSION, ChangeDetector
-from .dataset_tricolor import KEEP_OPTION, disagrees, index_record, sort_presses
+from .dataset_tricolor import KEEP_OPTION, disagrees, index_record, reordered, sort_presses
 from .dataset_tricolor import RECORD_KEY as TRICOLOR_KEY
 from .prefilter import Prefilter, check_colour_sigma, check_sigma
 
@@ -613,10 +613,10 @@ class _Build:
         from ..core.press_meta import listed_files
 
         files = files_as_read(folder, listed_files(press.meta))  # before its files are read: what they were
-        tricolor = press_tricolor_verdict(press).record()
+        rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
+        tricolor = press_tricolor_verdict(press, reordered(rec.report)).record()
         if disagrees(tricolor) and not self.keep_tricolor:  # to be left out (sort_presses): no shard, no samples
             return {"name": folder.name, "folder": str(folder.resolve()), TRICOLOR_KEY: tricolor}
-        rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
         samples = press_samples(press, rec, self.ref, self.cfg)
         entry = {
             "name": folder.name,

@@ -35,6 +35,17 @@ def disagrees(record: object) -> bool:
     return isinstance(record, dict) and record.get("verdict") in DISAGREE
 
 
+def reordered(report: dict) -> set[int]:
+    """The LEDs (0-based) whose images the press's solve used in another place than captured (report.json
+    ``led_order``: the LED images out of order, solved in the order they show; ``solver.led_checks``): an exchange of
+    theirs the tri-colour frame shows is the one the solve mended, its labels made from the images in their LEDs'
+    order, which the frame fits (``core.tricolor_check``'s ``said``)."""
+    order = report.get("led_order")
+    if not isinstance(order, list):
+        return set()
+    return {k for k, led in enumerate(order) if led != k}
+
+
 def sort_presses(
     entries: list[dict], reference: dict, reference_folder: Path, where: Path, keep: bool
 ) -> tuple[list[dict], list[dict]]:
@@ -125,7 +136,7 @@ def session_line(where: Path, record: dict, count: int, keep: bool = False) -> s
 
 
 def _judged(record: object) -> bool:
-    return isinstance(record, dict) and (record.get("verdict") == "fits" or disagrees(record))
+    return isinstance(record, dict) and (record.get("verdict") in ("fits", "said") or disagrees(record))
 
 
 def _signature(record: dict) -> tuple:

@@ -9,7 +9,13 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.core.leds import tricolor_groups
-from nlipscalib.core.tricolor_check import channel_misfits, groups_apart, tricolor_fit, tricolor_note
+from nlipscalib.core.tricolor_check import (
+    channel_misfits,
+    groups_apart,
+    tricolor_fit,
+    tricolor_note,
+    tricolor_verdict,
+)
 from tests.solver.twin_helpers import recorded_anew
 
 
@@ -103,6 +109,8 @@ def test_a_twin_press_with_images_of_two_groups_exchanged_is_named_and_clean_one
     assert line.startswith(f"{swapped / 'tricolor.png'}: truncated PNG") and "not compared" in line, line
     # already named as exchanged by the LED model's check: said once, there
     assert tricolor_note(press, _gel_samples(press), _names(press), said={3, 4}) is None
+    assert tricolor_verdict(press, _gel_samples(press), _names(press), said={3, 4}).kind == "said"
+    assert tricolor_verdict(press, _gel_samples(press), _names(press)).kind == "exchanged"
 
 
 def test_a_press_verdict_is_recorded_as_json_values_with_its_line_where_it_disagrees(tmp_path):

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.core.errors import ConfigError
-from nlipscalib.learn.dataset_tricolor import KEEP_OPTION, disagrees, session_line, sort_presses
+from nlipscalib.learn.dataset_tricolor import KEEP_OPTION, disagrees, reordered, session_line, sort_presses
 
 FITS = {"verdict": "fits", "misfit": [0.015, 0.015, 0.015], "sources": [0, 1, 2], "exchanged": None}
 BGR = {"verdict": "colours", "misfit": [0.01] * 3, "sources": [2, 1, 0], "exchanged": None, "line": "P: BGR"}
@@ -61,3 +61,15 @@ def test_the_session_line_names_what_each_way_of_disagreeing_holds():
     )
     assert disagrees(BGR) and disagrees(SWAP45) and not disagrees(FITS) and not disagrees(UNJUDGED)
     assert not disagrees(None)
+
+
+def test_the_leds_a_solve_used_in_another_place_are_those_its_report_moved():
+    """A solve that found two LED images out of order used them in the order they show (report.json led_order): the
+    tri-colour frame's exchange of those two is the one it mended (core.tricolor_check's ``said``), not a reason to
+    leave the press out; a "said" verdict counts as judged and agreeing."""
+    assert reordered({"led_order": [8, 1, 2, 3, 4, 5, 6, 7, 0, 9, 10, 11]}) == {0, 8}
+    assert reordered({"led_order": list(range(12))}) == set() and reordered({}) == set()
+    said = FITS | {"verdict": "said", "exchanged": [0, 8]}
+    assert not disagrees(said)
+    with pytest.raises(ConfigError, match="undeformed reference frame"):  # judged: not a session of one way
+        sort_presses(_entries(said, said), BGR, Path("/p/reference"), Path("/p"), keep=False)
