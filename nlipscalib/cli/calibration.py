@@ -25,7 +25,13 @@ OPTION_OF = {
     "smoothing_colour": "--smoothing-colour",
 }
 """The option of `nlips calibrate` that sets each SamplingConfig field (its validation messages name the field)."""
-SOLVE_OPTION_OF = {"normals": "--normals", "leds": "--leds", "led_model": "--led-model", "reference": "--reference"}
+SOLVE_OPTION_OF = {
+    "normals": "--normals",
+    "leds": "--leds",
+    "led_model": "--led-model",
+    "reference": "--reference",
+    "keep_tricolor": "--keep-tricolor-mismatch",
+}
 """The option of `nlips calibrate` that sets each other thing a dataset's samples depend on
 (learn.dataset.dataset_run), for the line refusing a build of other samples into the same --out."""
 COVERAGE_FILES = ("coverage.json", "coverage.png")
@@ -97,6 +103,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "steep wall's colour does not bleed into the flat gel beside it (bilateral filter; lifted Q2's unseen "
         "indenters; default: SamplingConfig's, 0.08; 0: the Gaussian alone, as before the thirty-fifth session)",
     )
+    p.add_argument(
+        "--keep-tricolor-mismatch",
+        action="store_true",
+        help="keep presses whose tri-colour frame does not hold their LED images' light (two images of different "
+        "colour groups captured in each other's place, the channels in another order, another press's frame: the "
+        "check `nlips solve` warns of), each warned of; by default each is left out of the dataset with one line, and "
+        "a session whose every capture disagrees the same way (a camera that gives BGR for RGB) is refused in one",
+    )
     add_allow_edited(p, "solve and sample")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -162,6 +176,8 @@ def run(args: argparse.Namespace) -> int:
         check_unchanged([reference, *presses])
     reference_fits(reference, presses)
     responses_agree(reference, presses)
+    if not args.keep_tricolor_mismatch:
+        tricolor_agrees(reference, presses, root)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
     if args.led_model == "disks":  # no LED file, or one without disks: one line now, not after the hold
@@ -175,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
     solve = {"normals": args.normals, "leds": leds}
     if args.led_model != "points":  # recorded when not the default: the datasets of point LEDs keep their records
         solve["led_model"] = args.led_model
+    if args.keep_tricolor_mismatch:  # decides which presses the index holds; recorded only when given, as above
+        solve["keep_tricolor"] = True
     run = dataset_run(presses, reference, cfg, solve=solve)
     with contextlib.ExitStack() as stack:
         # a run ended before the dataset's first write (Ctrl-C during the solves, a press refused) left an empty
@@ -262,8 +280,18 @@ def _solve_and_build(
     for name in COVERAGE_FILES:
         (out / name).unlink(missing_ok=True)
     unsampled = dict(damaged)  # a press whose tri-colour image is damaged fails alone, as a failed solve
-    build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run, failed=unsampled)
+    build_dataset(
+        solved,
+        reference,
+        out,
+        cfg,
+        progress=not args.no_progress,
+        run=run,
+        failed=unsampled,
+        keep_tricolor=args.keep_tricolor_mismatch,
+    )
     data = CalibrationDataset(out)
+    mismatched = [gone["name"] for gone in data.tricolor_left_out]
     cov = coverage(data, camera_position=camera_position_of(read_meta(Path(reference))))
     coverage_figure(cov, out / COVERAGE_FILES[1])
     write_coverage_json(out / COVERAGE_FILES[0], cov)
@@ -276,13 +304,20 @@ def _solve_and_build(
     say(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
     if cov["steep"]["advice"]:
         say(f"coverage: {cov['steep']['advice']}")
-    for names, what in ((failed, "failed to solve"), (unsampled, "left out of the dataset (not sampled)")):
+    if cov["tricolor"]["advice"]:
+        say(f"coverage: {cov['tricolor']['advice']}", warning=True)
+    left_out = (
+        (failed, "failed to solve"),
+        (unsampled, "left out of the dataset (not sampled)"),
+        (mismatched, "left out of the dataset (tri-colour frame unlike its LED images; --keep-tricolor-mismatch)"),
+    )
+    for names, what in left_out:
         if names:
             say(f"{len(names)} press{'es' if len(names) > 1 else ''} {what}: {', '.join(sorted(names))}", warning=True)
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
     variant = "--hidden 64,64,64 --dropout 0: the real-time variant"
     say(f"next: nlips train {shell_word(out)} --out MODEL.pt (NLiPsNet; {variant})")
-    return 1 if failed or unsampled else 0
+    return 1 if failed or unsampled or mismatched else 0
 
 
 def own_reference_left_out(root: Path, given: Path) -> None:
@@ -342,6 +377,31 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
         if why := twin_reference_problem(reference, read_meta(reference), press, meta, optional=False):
             raise ConfigError(f"--reference {why}")
         return
+
+
+def tricolor_agrees(reference: Path, presses: Sequence[Path], root: Path) -> None:
+    """One line, before any solving, when the undeformed capture's tri-colour frame does not hold its LED images'
+    light (:mod:`nlipscalib.core.tricolor_check`): the dataset's reference frame, which the build would refuse after
+    every press was solved. Only then is every press judged too (~0.2 s of CPU each at 640x480), so that a session
+    whose every capture disagrees the same way (a camera that gives BGR for RGB) is said as that
+    (:func:`nlipscalib.learn.dataset_tricolor.sort_presses`). A press that cannot be read is not judged: it fails
+    alone, in its own line."""
+    from ..core.capture import load_press
+    from ..core.errors import CaptureError
+    from ..core.tricolor_check import press_tricolor_verdict
+    from ..learn.dataset_tricolor import RECORD_KEY, disagrees, sort_presses
+
+    undeformed = press_tricolor_verdict(load_press(reference)).record()
+    if not disagrees(undeformed):
+        return
+    entries = []
+    for press in presses:
+        try:
+            record = press_tricolor_verdict(load_press(press)).record()
+        except CaptureError:
+            continue
+        entries.append({"name": press.name, "folder": str(press), RECORD_KEY: record})
+    sort_presses(entries, undeformed, reference, root, keep=False)  # raises: the reference disagrees
 
 
 def responses_agree(reference: Path, presses: Sequence[Path]) -> None:

@@ -189,6 +189,25 @@ def run(args: argparse.Namespace) -> int:
     data = CalibrationDataset(args.dataset)
     if older := data.older_sampling():
         log.warning("%s", older)
+    if left := [gone["name"] for gone in data.tricolor_left_out]:  # said by calibrate; the run's log says it too
+        log.info(
+            "%s: %d press%s left out by `nlips calibrate` (a tri-colour frame unlike its LED images): %s",
+            data.folder,
+            len(left),
+            "es" if len(left) != 1 else "",
+            ", ".join(left),
+        )
+    if kept := data.tricolor_kept:  # kept on request: the user knows, the model trained on them is said to
+        shown = ", ".join(kept[:5]) + (f" and {len(kept) - 5} more" if len(kept) > 5 else "")
+        log.warning(
+            "%s: %d of its %d presses have a tri-colour frame that does not hold their LED images' light, kept by "
+            "`nlips calibrate --keep-tricolor-mismatch` (%s): the network learns their colours as captured; frames "
+            "given to `nlips infer` must be captured alike",
+            data.folder,
+            len(kept),
+            len(data.entries),
+            shown,
+        )
     if not args.allow_edited and (changed := data.changed_presses()):
         raise CaptureError(next(iter(changed.values())) + _more_changed(changed))
     val = _names(args.val_presses) or None

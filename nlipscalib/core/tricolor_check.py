@@ -129,46 +129,91 @@ def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.n
     return tri[~clipped], images[:, ~clipped]
 
 
+class TricolorVerdict(NamedTuple):
+    """What :func:`tricolor_verdict` found of one press's tri-colour frame against its LED images."""
+
+    kind: str
+    """One of :data:`VERDICTS`: ``fits``, ``not judged`` (fewer than 3 LEDs, an LED subset, a frame made in memory, too
+    few unsaturated samples, groups whose images do not tell them apart), ``unreadable`` (the frame cannot be
+    read), or how it disagrees: ``colours`` (a channel holds another group's light: the camera's colour order, the
+    controller's pattern), ``exchanged`` (two LED images of different groups captured in each other's place),
+    ``misfit`` (no exchanged pair mends it: another press's frame, ...); ``said`` (the exchange found is of two LEDs
+    the caller names as shown elsewhere, ``said``: the solve's LED checks named them, and a solve that used the images
+    in the order they show is fitted by the frame)."""
+    line: str | None
+    """The one warning line naming the press (None when it fits, is not judged, or names a pair in ``said``)."""
+    fit: TricolorFit | None = None
+    """The fit behind it (None where nothing was fitted)."""
+
+    @property
+    def disagrees(self) -> bool:
+        """Whether the frame was judged and does not hold the LED images' light."""
+        return self.kind in DISAGREE
+
+    def record(self) -> dict:
+        """The verdict as JSON values, as a calibration dataset records it per press (docs/formats.md): ``verdict``
+        (:attr:`kind`), ``misfit`` (per channel, or null), ``sources`` (each channel's group, or null),
+        ``exchanged`` (the two LEDs, 0-based, or null) and, where it disagrees, ``line``. A channel without light
+        has a null misfit (JSON has no infinity)."""
+        fit = self.fit
+        record = {
+            "verdict": self.kind,
+            "misfit": None if fit is None else [round(float(m), 4) if np.isfinite(m) else None for m in fit.misfit],
+            "sources": None if fit is None else list(fit.sources),
+            "exchanged": None if fit is None or fit.exchanged is None else list(fit.exchanged),
+        }
+        return record | ({"line": self.line} if self.disagrees else {})
+
+
+DISAGREE = ("colours", "exchanged", "misfit")
+"""The kinds of :class:`TricolorVerdict` that say the frame does not hold the LED images' light."""
+VERDICTS = ("fits", "said", "not judged", "unreadable", *DISAGREE)
+"""Every kind of :class:`TricolorVerdict`."""
+
+
 def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> str | None:
     """One warning line naming the press (and the two LED images exchanged, when their exchange mends it) when its
     tri-colour frame does not hold its LED images' light (:func:`tricolor_fit` at the gel samples ``pixels``); None
     when it does, or cannot be judged (fewer than 3 LEDs, an LED subset, too few unsaturated samples, LED groups
     whose images do not tell them apart: :func:`groups_apart`); the reader's line when the frame cannot be read (a
-    truncated file).
+    truncated file): :func:`tricolor_verdict`'s line.
 
     ``names``: the LED images' file names, LED ``i`` at ``i``; ``said``: LEDs (0-based) already named as showing
     other LEDs' light (no line when the exchange found is theirs)."""
+    return tricolor_verdict(press, pixels, names, said).line
+
+
+def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> TricolorVerdict:
+    """Whether the tri-colour frame of ``press`` holds its LED images' light, and the line that says it does not
+    (arguments as :func:`tricolor_note`'s): the one copy of the check, which the solve, ``nlips capture``,
+    ``nlips calibrate-leds`` and the calibration dataset's build use."""
     count = len(press.leds)
     listed = (press.meta.get("images") or {}).get("leds")
     if count < 3 or not isinstance(listed, list) or len(listed) != count:  # an LED subset: its groups are not these
-        return None
+        return TricolorVerdict("not judged", None)
     try:
         frame = press.tricolor
     except CaptureError as error:  # the solve does not need the frame: said, not refused
-        return f"{error}; the tri-colour frame is not compared with the LED images"
+        return TricolorVerdict("unreadable", f"{error}; the tri-colour frame is not compared with the LED images")
     if not isinstance(frame, np.ndarray) or frame.shape != (*press.camera.shape, 3):  # a Press made in memory
-        return None
+        return TricolorVerdict("not judged", None)
     samples = tricolor_samples(press, pixels)
     if samples is None:
-        return None
+        return TricolorVerdict("not judged", None)
     groups = tricolor_groups(count)
     if not groups_apart(samples[1], groups):
-        return None
+        return TricolorVerdict("not judged", None)
     fit = tricolor_fit(*samples, groups)
     tri = (press.meta.get("images") or {}).get("tricolor", "the tri-colour frame")
     if fit.sources != (0, 1, 2):  # the gains take any colours: a frame lit in others fits as well
-        lit = ", ".join(
-            f"its {TRICOLOR_NAMES[c]} channel the {TRICOLOR_NAMES[g]} group's"
-            for c, g in enumerate(fit.sources)
-            if g != c
-        )
-        return (
+        line = (
             f"{press.folder}: {tri} holds the light of LED groups in other colours than LEDs {_groups_said(groups)} "
-            f"({lit}): the LED controller's tri-colour pattern, or the camera's colour order (RGB / BGR); a network "
-            "trained or run on this press's tri-colour frame would not match its LED images"
+            f"({sources_said(fit.sources)}): the LED controller's tri-colour pattern, or the camera's colour order "
+            "(RGB / BGR); a network trained or run on this press's tri-colour frame would not match its LED images"
         )
+        return TricolorVerdict("colours", line, fit)
     if not np.max(fit.misfit) > tolerances.TRICOLOR_MISFIT:
-        return None
+        return TricolorVerdict("fits", None, fit)
     shares = ", ".join(f"{TRICOLOR_NAMES[c]} {100 * fit.misfit[c]:.1f} %" for c in range(3))
     head = (
         f"{press.folder}: {tri} does not hold the light of the LED images lit in its colours (each channel against "
@@ -176,18 +221,28 @@ def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Coll
         f"{100 * tolerances.TRICOLOR_MISFIT:.0f} % or less)"
     )
     if fit.exchanged is None:
-        return (
+        line = (
             f"{head}: a tri-colour frame of another press, its LED groups lit in other colours than LEDs "
             f"{_groups_said(groups)}, or LED images out of order; the solve uses the LED images, a network trained "
             "or run on this press's tri-colour frame would not match them"
         )
+        return TricolorVerdict("misfit", line, fit)
     i, j = fit.exchanged
     if {i, j} <= set(said):
-        return None
-    return (
+        return TricolorVerdict("said", None, fit)
+    line = (
         f"{head}: with {names[i]} ({TRICOLOR_NAMES[groups[i]]} group) and {names[j]} ({TRICOLOR_NAMES[groups[j]]}) "
         f"exchanged it fits ({100 * fit.exchanged_misfit:.1f} %): the two images were captured in each other's place "
         "(the LED wiring, the controller's LED order or the images' order): check them"
+    )
+    return TricolorVerdict("exchanged", line, fit)
+
+
+def sources_said(sources: Sequence[int]) -> str:
+    """ "its red channel the blue group's, its blue channel the red group's" for a fit's ``sources`` (each
+    channel's group), the channels that hold their own group's light left unsaid."""
+    return ", ".join(
+        f"its {TRICOLOR_NAMES[c]} channel the {TRICOLOR_NAMES[g]} group's" for c, g in enumerate(sources) if g != c
     )
 
 
@@ -217,9 +272,15 @@ def gel_samples(reference: Reference | None, shape: tuple[int, int]) -> np.ndarr
 def press_tricolor_note(press: Press, said: Collection[int] = ()) -> str | None:
     """:func:`tricolor_note` of ``press`` at its :func:`gel_samples`, its LED images named as its meta.json names
     them (``nlips calibrate-leds``' check of its undeformed captures)."""
+    return press_tricolor_verdict(press, said).line
+
+
+def press_tricolor_verdict(press: Press, said: Collection[int] = ()) -> TricolorVerdict:
+    """:func:`tricolor_verdict` of ``press`` at its :func:`gel_samples`, its LED images named as its meta.json names
+    them (the calibration dataset's check of each press and of its undeformed capture)."""
     listed = (press.meta.get("images") or {}).get("leds")
     names = list(listed) if isinstance(listed, list) else [led_image_name(i) for i in range(len(press.leds))]
-    return tricolor_note(press, gel_samples(press.reference, press.camera.shape), names, said)
+    return tricolor_verdict(press, gel_samples(press.reference, press.camera.shape), names, said)
 
 
 def captured_tricolor_note(

@@ -93,7 +93,8 @@ def coverage(
     (cells, cells) bool (regions that see the gel), ``covered_fraction``, per-kind direction histograms
     ``kinds``, ``next_press`` (region box in pixels, centre (u, v), press direction or None, indenter kind,
     advice text), ``steep`` (how steep the taught normals are, the advice when the steepest rings are empty:
-    :func:`steep_gap`) and the bin layout (tilt ring edges, sectors).
+    :func:`steep_gap`), ``tricolor`` (the presses left out or kept for a tri-colour frame unlike their LED images:
+    :func:`tricolor_presses`) and the bin layout (tilt ring edges, sectors).
     """
     ref = dataset.reference()
     H, W = ref["valid"].shape
@@ -133,7 +134,36 @@ def coverage(
         "kinds": {k: (h / max(h.sum(), 1)).round(4) for k, h in kinds.items()},
         "next_press": _next_press(counts, covered, gel, kinds, ref["valid"], where),
         "steep": steep_gap(covered, gel, tilts),
+        "tricolor": tricolor_presses(dataset),
     }
+
+
+def tricolor_presses(dataset: CalibrationDataset) -> dict:
+    """The presses whose tri-colour frame does not hold their LED images' light (``nlips calibrate``'s check,
+    :mod:`.dataset_tricolor`): ``left_out`` (names; their regions count as not pressed), ``kept`` (names, kept with
+    ``--keep-tricolor-mismatch``), and the ``advice`` line ("" when there are none)."""
+    left = [gone["name"] for gone in dataset.tricolor_left_out]
+    kept = dataset.tricolor_kept
+    advice = []
+    if left:
+        advice.append(
+            f"{_count(left)} left out of the dataset, whose tri-colour frame does not hold its LED images' light "
+            f"({_shown(left)}): what they pressed is not covered; capture them again"
+        )
+    if kept:
+        advice.append(
+            f"{_count(kept)} in the dataset whose tri-colour frame does not hold its LED images' light, kept with "
+            f"--keep-tricolor-mismatch ({_shown(kept)})"
+        )
+    return {"left_out": left, "kept": kept, "advice": "; ".join(advice)}
+
+
+def _count(names: list[str]) -> str:
+    return f"{len(names)} press{'es' if len(names) != 1 else ''}"
+
+
+def _shown(names: list[str]) -> str:
+    return ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
 
 
 def steep_gap(covered: np.ndarray, gel: np.ndarray, tilt_counts: np.ndarray) -> dict:

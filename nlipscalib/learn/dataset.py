@@ -64,6 +64,8 @@ from ..core.shell_words import shell_word
 from ..core.tolerances import FRAME_CHANNEL_DRIFT
 from ..progress import track
 from .change import RULE_VERSION, ChangeDetector
+from .dataset_tricolor import KEEP_OPTION, disagrees, index_record, reordered, sort_presses
+from .dataset_tricolor import RECORD_KEY as TRICOLOR_KEY
 from .prefilter import Prefilter, check_colour_sigma, check_sigma
 
 if TYPE_CHECKING:  # named in hints only: the functions import the capture and reconstruction modules where used
@@ -312,12 +314,15 @@ def write_index(
     made_by: str | None = None,
     capture: dict | None = None,
     reference_files: dict | None = None,
+    tricolor: dict | None = None,
 ) -> Path:
     """index.json: written last, so its presence marks a usable dataset. ``made_by``: :data:`EXPERIMENT_MAKER` for
     an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew. ``capture``:
     the capture settings its presses share (``core.sensor_record.common_settings``), which a model trained on it
     keeps; None when unknown. ``reference_files``: the undeformed capture's files as the build read them
-    (core.press_checksums.files_as_read), which ``nlips train`` compares with the capture's files now."""
+    (core.press_checksums.files_as_read), which ``nlips train`` compares with the capture's files now.
+    ``tricolor``: the tri-colour frames' check (:func:`.dataset_tricolor.index_record`: the undeformed capture's
+    verdict, the presses left out); None where none was made (an experiment's dataset)."""
     index = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -331,6 +336,8 @@ def write_index(
     }
     if reference_files is not None:
         index["reference_files"] = reference_files
+    if tricolor is not None:
+        index[TRICOLOR_KEY] = tricolor
     return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
 
 
@@ -406,6 +413,7 @@ def build_dataset(
     progress: bool = True,
     run: dict | None = None,
     failed: dict[str, str] | None = None,
+    keep_tricolor: bool = False,
 ) -> Path:
     """Pair every solved press's tri-colour image with its NLiPs normals into a calibration dataset.
 
@@ -422,16 +430,22 @@ def build_dataset(
     failed : where a press that cannot be sampled (a damaged tri-colour image, another sensor: a CaptureError) is
         left out of the dataset, its error logged and its name mapped to it here, as a batch's failed solve is
         (``nlips calibrate``); None: the error is raised
+    keep_tricolor : keep the presses whose tri-colour frame does not hold their LED images' light
+        (:mod:`nlipscalib.core.tricolor_check`), each warned of; False: each is left out of the index with one line
+        (:func:`.dataset_tricolor.sort_presses`), recorded in index.json's ``tricolor``
 
     Returns
     -------
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
     another sensor (with ``failed``: only when every press is), ConfigError when another live build of other
-    samples holds ``out`` or ``press_folders`` is empty.
+    samples holds ``out`` or ``press_folders`` is empty, and (without ``keep_tricolor``) when every capture's
+    tri-colour frame disagrees with its LED images the same way (a camera's colour order) or the undeformed
+    capture's does.
     """
     from ..core.capture import Press, load_press
     from ..core.press_checksums import files_as_read
     from ..core.press_meta import listed_files, read_meta
+    from ..core.tricolor_check import press_tricolor_verdict
 
     each = "a press folder's path (str or Path) or a loaded Press"
     given = check_paths(press_folders, "press_folders", "a list of press folders", (*PATH, Press), each)
@@ -451,12 +465,22 @@ def build_dataset(
         reference_files = files_as_read(reference_folder, listed_files(read_meta(reference_folder)))
         ref_press = load_press(reference_folder)
         check_min_leds(cfg, len(ref_press.leds), reference_folder)
-        build = _Build(out, cfg, result_dir, sensor_of(ref_press), reference_arrays(ref_press), failed=failed)
+        ref = reference_arrays(ref_press)
+        ref_tricolor = press_tricolor_verdict(ref_press).record()
+        build = _Build(out, cfg, result_dir, sensor_of(ref_press), ref, failed=failed, keep_tricolor=keep_tricolor)
         write_shard(out / SENSOR_FILE, build.ref)
         entries = build.entries(folders, progress)
-        folders = [folder for folder in folders if folder.name not in (failed or {})]
         if failed and not entries:  # every press left out: their lines were logged, this one ends the build
             raise CaptureError(f"{out}: no press could be sampled (each one's error is above)")
+        where = folders[0].parent if len({f.parent for f in folders}) == 1 else out
+        entries, left_out = sort_presses(entries, ref_tricolor, Path(reference_folder), where, keep_tricolor)
+        if not entries:  # every press disagrees, not all alike: each said above
+            raise CaptureError(
+                f"{out}: no press left whose tri-colour frame holds its LED images' light (each one's line is above); "
+                f"pass {KEEP_OPTION} to keep them"
+            )
+        indexed = {e["name"] for e in entries}
+        folders = [folder for folder in folders if folder.name in indexed]
         if build.kept:  # what a resumed build reused, as solve and experiment say theirs
             names = build.kept
             shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
@@ -469,7 +493,16 @@ def build_dataset(
             )
         capture = common_settings([capture_settings(read_meta(folder)) for folder in folders])  # the presses' alike
         reference = str(Path(reference_folder).resolve())
-        write_index(out, build.sensor, cfg, entries, reference, capture=capture, reference_files=reference_files)
+        write_index(
+            out,
+            build.sensor,
+            cfg,
+            entries,
+            reference,
+            capture=capture,
+            reference_files=reference_files,
+            tricolor=index_record(ref_tricolor, left_out, keep_tricolor),
+        )
     return out
 
 
@@ -496,6 +529,9 @@ class _Build:
     """Names of the presses whose shard was found made (by an earlier build, or another one at work)."""
     failed: dict[str, str] | None = None
     """:func:`build_dataset`'s ``failed``: the presses left out, by name, with their errors (None: raise them)."""
+    keep_tricolor: bool = False
+    """:func:`build_dataset`'s ``keep_tricolor``: sample a press whose tri-colour frame disagrees with its LED images
+    (False: its entry holds only its verdict, no shard is made, and it is left out)."""
     ref_digest: str = dataclasses.field(init=False)
     """:func:`arrays_digest` of ``ref``: part of every shard's stamp."""
     old: dict = dataclasses.field(init=False)
@@ -567,6 +603,7 @@ class _Build:
     def make(self, folder: Path, shard: Path, stamp: str) -> dict:
         from ..core.capture import load_press
         from ..core.reconstruction import load_reconstruction
+        from ..core.tricolor_check import press_tricolor_verdict
 
         press = load_press(folder)
         check_sensor(self.sensor, sensor_of(press), folder)
@@ -577,6 +614,9 @@ class _Build:
 
         files = files_as_read(folder, listed_files(press.meta))  # before its files are read: what they were
         rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
+        tricolor = press_tricolor_verdict(press, reordered(rec.report)).record()
+        if disagrees(tricolor) and not self.keep_tricolor:  # to be left out (sort_presses): no shard, no samples
+            return {"name": folder.name, "folder": str(folder.resolve()), TRICOLOR_KEY: tricolor}
         samples = press_samples(press, rec, self.ref, self.cfg)
         entry = {
             "name": folder.name,
@@ -587,6 +627,7 @@ class _Build:
             "press": press_description(press),
             "stamp": stamp,
             "files": files,
+            TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
         }
         write_shard(shard, samples, entry)
         return entry
@@ -767,7 +808,9 @@ def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
         log.warning("%s; making it again", exc)
         return None
     entry = made or indexed
-    if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == count:
+    if not (isinstance(entry, dict) and TRICOLOR_KEY in entry):  # made before the tri-colour check: judged anew
+        return None
+    if entry.get("stamp") == stamp and entry.get("samples") == count:
         return entry
     return None
 
@@ -964,10 +1007,32 @@ class CalibrationDataset:
         self.capture: dict | None = capture if isinstance(capture, dict) else None
         """The capture settings its presses share (``core.sensor_record.common_settings``); None for datasets made
         before they were recorded (2026-12-05) and for the experiments' (their rendered presses may be gone)."""
+        tricolor = index.get(TRICOLOR_KEY)
+        self.tricolor: dict | None = tricolor if isinstance(tricolor, dict) else None
+        """index.json's record of the tri-colour frames' check (:func:`.dataset_tricolor.index_record`); None for
+        datasets made before it (2026-12-07) and for the experiments'."""
 
     @property
     def names(self) -> list[str]:
         return [e["name"] for e in self.entries]
+
+    @property
+    def tricolor_left_out(self) -> list[dict]:
+        """The presses ``nlips calibrate`` left out because their tri-colour frame does not hold their LED images'
+        light (each ``{"name", "folder", "tricolor"}``, the last with the warning's ``line``); empty when none, or
+        not recorded."""
+        left = (self.tricolor or {}).get("left_out")
+        return (
+            [g for g in left if isinstance(g, dict) and isinstance(g.get("name"), str)]
+            if isinstance(left, list)
+            else []
+        )
+
+    @property
+    def tricolor_kept(self) -> list[str]:
+        """The indexed presses whose tri-colour frame does not hold their LED images' light, kept on request
+        (``--keep-tricolor-mismatch``)."""
+        return [e["name"] for e in self.entries if disagrees(e.get(TRICOLOR_KEY))]
 
     def older_sampling(self) -> str | None:
         """Why this dataset's samples may not be those this nlipscalib makes of its presses, in one line naming

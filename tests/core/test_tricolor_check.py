@@ -9,7 +9,13 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.core.leds import tricolor_groups
-from nlipscalib.core.tricolor_check import channel_misfits, groups_apart, tricolor_fit, tricolor_note
+from nlipscalib.core.tricolor_check import (
+    channel_misfits,
+    groups_apart,
+    tricolor_fit,
+    tricolor_note,
+    tricolor_verdict,
+)
 from tests.solver.twin_helpers import recorded_anew
 
 
@@ -103,3 +109,29 @@ def test_a_twin_press_with_images_of_two_groups_exchanged_is_named_and_clean_one
     assert line.startswith(f"{swapped / 'tricolor.png'}: truncated PNG") and "not compared" in line, line
     # already named as exchanged by the LED model's check: said once, there
     assert tricolor_note(press, _gel_samples(press), _names(press), said={3, 4}) is None
+    assert tricolor_verdict(press, _gel_samples(press), _names(press), said={3, 4}).kind == "said"
+    assert tricolor_verdict(press, _gel_samples(press), _names(press)).kind == "exchanged"
+
+
+def test_a_press_verdict_is_recorded_as_json_values_with_its_line_where_it_disagrees(tmp_path):
+    """The calibration dataset keeps each press's verdict in its index entry (learn.dataset_tricolor): the kind,
+    the per-channel misfit, each channel's group and the line, for a clean exact-data press and its frame as BGR."""
+    import json
+
+    from nlipscalib.core.imageio import read_png16, write_png16
+    from nlipscalib.core.tricolor_check import press_tricolor_verdict
+    from tests.solver import synth
+
+    synth.make_press(tmp_path / "clean", "sphere", size=(64, 48))
+    clean = press_tricolor_verdict(load_press(tmp_path / "clean"))
+    assert clean.kind == "fits" and clean.line is None and not clean.disagrees
+    record = clean.record()
+    assert record["verdict"] == "fits" and record["sources"] == [0, 1, 2] and max(record["misfit"]) < 0.01
+    assert "line" not in record and json.loads(json.dumps(record)) == record
+    shutil.copytree(tmp_path / "clean", tmp_path / "bgr")
+    path = tmp_path / "bgr" / "tricolor.png"
+    write_png16(path, read_png16(path)[..., ::-1].copy())
+    recorded_anew(tmp_path / "bgr")
+    bgr = press_tricolor_verdict(load_press(tmp_path / "bgr"))
+    assert bgr.kind == "colours" and bgr.disagrees and bgr.record()["sources"] == [2, 1, 0]
+    assert bgr.record()["line"] == bgr.line and bgr.line.startswith(f"{tmp_path / 'bgr'}: tricolor.png holds the")

@@ -16,6 +16,8 @@ class FakeDataset:
     def __init__(self, presses: dict[str, tuple[str, np.ndarray]]):
         self.presses = presses  # name -> (indenter kind, tilts in degrees of its samples)
         self.entries = [{"name": n, "press": {"indenter": k}} for n, (k, _) in presses.items()]
+        self.tricolor_left_out: list[dict] = []  # the presses `nlips calibrate` left out for their tri-colour frame
+        self.tricolor_kept: list[str] = []  # those kept with --keep-tricolor-mismatch
 
     def reference(self):
         normals = np.zeros((H, W, 3))
@@ -156,3 +158,17 @@ def test_a_region_that_holds_gel_and_black_corner_is_advised_on_its_gel():
     )
     # where the gel fills the region, the advice is its centre, as before
     assert gel_centre([0, 0, 40, 30], np.ones((120, 160), bool)) == (19.5, 14.5)
+
+
+def test_the_presses_left_out_or_kept_for_their_tri_colour_frame_are_named():
+    data = FakeDataset({"a": smooth_press("sphere"), "b": smooth_press("cube")})
+    assert coverage(data)["tricolor"] == {"left_out": [], "kept": [], "advice": ""}
+    data.tricolor_left_out = [{"name": "press_0003", "folder": "/p/press_0003", "tricolor": {"verdict": "colours"}}]
+    data.tricolor_kept = ["b"]
+    found = coverage(data)["tricolor"]
+    assert found["left_out"] == ["press_0003"] and found["kept"] == ["b"]
+    assert found["advice"].startswith("1 press left out of the dataset, whose tri-colour frame does not hold")
+    assert (
+        "(press_0003): what they pressed is not covered" in found["advice"]
+        and "--keep-tricolor-mismatch (b)" in (found["advice"])
+    )
