@@ -153,6 +153,55 @@ def in_process(trees: dict[str, Path], models: dict[str, dict[str, Path]], args)
                 )
 
 
+def network_only(folder: Path, press: Path, repeats: int) -> None:
+    """The network stage alone, one process (this checkout's OnnxNet, 1 thread), the two exports of the ratio model
+    alternating ``repeats`` times: before, the NumPy division of the changed pixels' colours (what `nlips infer`
+    did) and the old graph; after, the standalone graph on the linear colours. Wall and process CPU a call: on a
+    loaded machine the CPU is the steadier figure. The linear model's two exports likewise (the same graph)."""
+    import numpy as np
+
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import OnnxNet, max_angle_deg
+
+    loaded = load_press(press)
+    frame = loaded.linear(loaded.tricolor)
+    inputs = []
+    predictor = Predictor(folder / "after" / "ratio.pt", backend="torch", threads=1, depth=False)
+    run = predictor._run
+    predictor._run = lambda x: inputs.append(x.copy()) or run(x)
+    predictor.predict(frame)
+    x = np.concatenate(inputs[-1:])  # the frame's changed pixels: (u, v, filtered linear r, g, b)
+    divide = load_model(folder / "after" / "ratio.pt").input_reference
+    row, col = x[:, 1].astype(np.intp), x[:, 0].astype(np.intp)
+    print(f"\nThe network stage alone ({len(x)} changed pixels, 1 thread, {repeats} calls a side, alternating)\n")
+    print("| model | export | wall ms | CPU ms | max angle to the other export, deg |\n|---|---|---|---|---|")
+    for name in MODELS:
+        for int8 in (False, True):
+            nets = {side: OnnxNet(folder / side / f"{name}.onnx", threads=1, int8=int8) for side in ("before", "after")}
+
+            def before(buf: np.ndarray, nets=nets, name=name) -> np.ndarray:
+                if name == "ratio":  # Predictor.predict's line before s38-onnxratio, on its own copy of the inputs
+                    buf[:, 2:] /= divide[row, col]
+                return nets["before"](buf)
+
+            calls = {"before": before, "after": lambda buf, nets=nets: nets["after"](buf)}
+            times = {side: ([], []) for side in calls}
+            out = {side: fn(x.copy()) for side, fn in calls.items()}  # warm-up
+            for _ in range(repeats):
+                for side, fn in calls.items():
+                    buf = x.copy()  # infer builds its input array a frame: not timed on either side
+                    w, c = time.perf_counter(), time.process_time()
+                    fn(buf)
+                    times[side][0].append((time.perf_counter() - w) * 1e3)
+                    times[side][1].append((time.process_time() - c) * 1e3)
+            angle = max_angle_deg(out["before"], out["after"])  # accurate for tiny angles (arccos is not)
+            for side, (walls, cpus) in times.items():
+                kind = "int8" if int8 else "float32"
+                print(f"| {name} | {side} ({kind}) | {spread(walls, 2)} | {spread(cpus, 2)} | {angle:.2g} |")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--before", type=Path, help="the checkout before the change (a git worktree)")
@@ -165,9 +214,12 @@ def main() -> None:
     p.add_argument("--export-runs", type=int, default=3, help="alternating rounds of nlips export (default 3)")
     p.add_argument("--repeats", type=int, default=5, help="frames a round in process (default 5)")
     p.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
+    p.add_argument("--network-only", action="store_true", help="the network stage alone, of the exports in --out")
     args = p.parse_args()
     if args.worker:
         return worker(args.worker, args.press, args.repeats)
+    if args.network_only:
+        return network_only(args.out, args.press, args.repeats)
     trees = {"before": args.before.resolve(), "after": ROOT}
     args.out.mkdir(parents=True, exist_ok=True)
     made = make_models(args.reference, args.out)
