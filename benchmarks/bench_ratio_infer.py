@@ -92,7 +92,8 @@ def in_process(models: dict[str, Path], press: Path, pairs: int, repeats: int) -
 def ratio_work(models: dict[str, Path], press: Path, repeats: int) -> None:
     """The ratio's own work, alone (wall, and CPU of this process: OpenCV may filter on several threads): the
     filtered reference a ratio model's load makes (``input_reference``) and the division of a frame's changed colours
-    by it (``Predictor.predict``'s one line)."""
+    by it (``Predictor.predict``'s one line until s38-onnxratio; since then the PyTorch runner's, and the ONNX graph's
+    own nodes: benchmarks/bench_onnx_ratio.py)."""
     import numpy as np
 
     from nlipscalib.core import load_press

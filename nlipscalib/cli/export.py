@@ -71,8 +71,9 @@ def run(args: argparse.Namespace) -> int:
 
 def parity_deg(model: LoadedModel, onnx_path: Path) -> float:
     """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels, their
-    colours as they are and 10 % darker and brighter (a contact changes them), over the model's filtered reference
-    colours for a model of ratios (``learn.model.model_inputs``); CaptureError beyond the limit."""
+    colours as they are and 10 % darker and brighter (a contact changes them): the linear colours the export takes
+    (a ratio model's graph divides them by its reference, PyTorch is given them divided: ``checked_parity``);
+    CaptureError beyond the limit."""
     import numpy as np
 
     from ..learn.model import model_inputs
@@ -84,5 +85,5 @@ def parity_deg(model: LoadedModel, onnx_path: Path) -> float:
     rows, cols = rows[pick], cols[pick]
     pixel = np.stack([cols, rows], axis=1)  # (u, v) = (column, row)
     rgb = ref["tricolor"][rows, cols].astype(np.float32)
-    x = np.concatenate([model_inputs(pixel, rgb * s, model.input_reference) for s in (0.9, 1.0, 1.1)])
+    x = np.concatenate([model_inputs(pixel, rgb * s) for s in (0.9, 1.0, 1.1)])
     return checked_parity(model, onnx_path, x, threads=1)

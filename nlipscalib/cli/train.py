@@ -336,9 +336,7 @@ def export_and_check(model_path: Path, dataset: CalibrationDataset, names: Seque
     path = export_onnx(
         model,
         model_path.with_suffix(".onnx"),
-        check=lambda tmp: angles.append(
-            checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"], model.input_reference))
-        ),
+        check=lambda tmp: angles.append(checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"]))),
     )
     return path, angles[0]
 

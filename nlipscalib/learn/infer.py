@@ -204,6 +204,9 @@ class Predictor:
                 integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
+        """The network on the CPU: (N, 5) float32 pixels and filtered linear colours -> (N, 3) unit normals, for a
+        model of colour ratios too (its ONNX graph divides the colours by the reference itself, PyTorch's runner
+        here: once, either way); None on a GPU or the whole frame (:mod:`.fullframe`)."""
         self.backend = backend = resolved_backend(self.model.path, backend, on_cpu=self.device is None)
         if self.device is not None:  # a GPU or the whole frame: PyTorch, run by .fullframe
             return None
@@ -215,11 +218,14 @@ class Predictor:
             raise ShapeError(f"backend must be one of {BACKENDS}, got {backend!r}")
         import torch
 
-        from .model import fused_net
+        from .model import fused_net, model_inputs
 
         net = fused_net(self.model.net)
+        divide = self.model.input_reference  # a model of colour ratios: its filtered reference (model_inputs)
 
         def run(x: np.ndarray):
+            if divide is not None:
+                x = model_inputs(x[:, :2], x[:, 2:], divide)
             with torch_threads(threads), torch.inference_mode():
                 return net(torch.from_numpy(x)).numpy()
 
@@ -314,9 +320,7 @@ class Predictor:
             x = np.empty((len(index), 5), np.float32)
             row, col = np.divmod(index, self.shape[1])
             x[:, 1], x[:, 0] = row, col  # v = row, u = column
-            x[:, 2:] = self._colours(tricolor, row, col)
-            if self.model.input_reference is not None:  # a model of colour ratios (learn.model.model_inputs)
-                x[:, 2:] /= self.model.input_reference[row, col]
+            x[:, 2:] = self._colours(tricolor, row, col)  # a ratio model's runtime divides them (:meth:`_backend`)
             normals.reshape(-1, 3)[index] = self._run(x)
         t2 = time.perf_counter()
         if self.geo is not None:

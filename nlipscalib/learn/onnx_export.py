@@ -1,12 +1,16 @@
 """NLiPsNet to ONNX (made of ONNX's protobuf messages from the folded weights, as onnx.helper writes them) and
 inference with onnxruntime.
 
-The ONNX graph takes the same raw (N, 5) input as the PyTorch model and returns (N, 3) unit normals.
-It is the inference form of the network (:func:`nlipscalib.learn.model.folded_layers`): input
-normalisation and BatchNorm folded into the linear layers, so the graph is MatMul+Add (one Gemm to onnxruntime),
-ReLU, ..., MatMul+Add, then the division by the L2 norm. The sensor description and the model file's digest travel
-in the ONNX metadata, and a file is run only once it is compared with the export of the model it is run with
-(:func:`check_export`), so an .onnx file is never used with another model's reference.
+The ONNX graph takes one (N, 5) input for every model, (u, v) pixels and their filtered linear r, g, b
+(:data:`INPUT`), and returns (N, 3) unit normals. It is the inference form of the network
+(:func:`nlipscalib.learn.model.folded_layers`): input normalisation and BatchNorm folded into the linear layers, so the
+graph is MatMul+Add (one Gemm to onnxruntime), ReLU, ..., MatMul+Add, then the division by the L2 norm. For a model of
+colour ratios (``colour_input`` "ratio") the graph first divides r, g, b by the model's filtered reference colour at
+each pixel (:func:`_ratio_nodes`: the map an initializer, read at the pixel (u, v) gives), so the file is standalone:
+a caller gives every model the same inputs, and never divides. The sensor description, the model file's digest and
+the input contract (:func:`input_contract`) travel in the ONNX metadata, and a file is run only once it is compared
+with the export of the model it is run with (:func:`check_export`), so an .onnx file is never used with another
+model's reference.
 """
 
 from __future__ import annotations
@@ -38,8 +42,11 @@ OPSET = 17
 IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 INPUT, OUTPUT = "uvrgb", "normal"
-"""Names of the export's input, (pixels, 5) float32 raw (u, v, r, g, b), and output, (pixels, 3) float32 unit
-normals."""
+"""Names of the export's input, (pixels, 5) float32 raw (u, v, r, g, b): pixel column and row, the linear colours
+filtered by the model's prefilter (never divided by the reference: a ratio model's graph does that), and output,
+(pixels, 3) float32 unit normals."""
+RATIO_INPUT = "uvratio"
+"""Inside a ratio model's graph: the input with r, g, b over the reference's, what the first layer reads."""
 SIZE_SLACK = 1 << 20
 """Bytes a received ONNX file may hold beyond its model's export (metadata written by another tool, a longer sensor
 record): a larger file is refused before it is read."""
@@ -73,7 +80,8 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
 
     The graph is written directly from the folded weights (:func:`nlipscalib.learn.model.folded_layers`):
     per layer a MatMul named ``layer<k>`` and an Add (onnxruntime fuses the pair into one Gemm), ReLU
-    between layers, then the division by the L2 norm (at least 1e-8). Named layers let the int8
+    between layers, then the division by the L2 norm (at least 1e-8); for a model of colour ratios, the division of
+    the colours by its reference's before them (:func:`_ratio_nodes`). Named layers let the int8
     variant leave chosen layers in float (:func:`quantized_int8`).
     """
     from ..core.atomic import write_by_name, write_bytes
@@ -132,6 +140,12 @@ def _tensor(pb: ModuleType, values: np.ndarray, name: str) -> onnx.TensorProto:
     return pb.TensorProto(name=name, dims=values.shape, data_type=pb.TensorProto.FLOAT, raw_data=values.tobytes())
 
 
+def _int_tensor(pb: ModuleType, values: list[int], name: str) -> onnx.TensorProto:
+    """An int64 initializer as onnx.numpy_helper.from_array writes it (dims, INT64, little-endian raw_data)."""
+    array = np.asarray(values, "<i8")
+    return pb.TensorProto(name=name, dims=array.shape, data_type=pb.TensorProto.INT64, raw_data=array.tobytes())
+
+
 def _node(
     pb: ModuleType, op: str, inputs: list[str], outputs: list[str], name: str, **ints: int | list[int]
 ) -> onnx.NodeProto:
@@ -167,6 +181,9 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     pb = onnx_messages()
     linear = folded_layers(model.net.state_dict())
     nodes, weights, current = [], [], INPUT
+    if model.input_reference is not None:  # a model of colour ratios: divided here, so the file is standalone
+        nodes, weights = _ratio_nodes(pb, model.input_reference)
+        current = RATIO_INPUT
     for k, (W, b) in enumerate(linear):
         weights.append(_tensor(pb, W.T, f"W{k}"))
         weights.append(_tensor(pb, b, f"b{k}"))
@@ -189,11 +206,72 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     proto = pb.ModelProto(ir_version=IR_VERSION, producer_name="nlipscalib", graph=graph)
     proto.opset_import.add(domain="", version=OPSET)
     meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
-    if model.colour_input != "linear":  # its r, g, b are ratios to the .pt's reference: said to whoever reads the file
+    if model.colour_input != "linear":  # the network's r, g, b are ratios, made inside the graph: "input" says so
         meta["colour_input"] = model.colour_input
+    meta["input"] = json.dumps(input_contract(model))
     for key, value in meta.items():
         proto.metadata_props.add(key=key, value=value)
     return proto
+
+
+def input_contract(model: LoadedModel) -> dict:
+    """What the export's input holds, for its metadata's ``input`` (JSON): enough for a program in any language to
+    make it from a camera frame without nlipscalib (docs/formats.md).
+
+    Returns
+    -------
+    dict: ``name``, ``shape``, ``columns`` (u, v, r, g, b), ``pixels`` (u, v: what they are and their range),
+    ``colours`` (r, g, b: what they are), ``smoothing_px`` and ``smoothing_colour`` (the prefilter the colours get
+    first, :mod:`.prefilter`), ``divided_inside`` (true for a model of colour ratios: the graph divides r, g, b by its
+    initializer ``reference`` at the pixel; never divide them before)
+    """
+    height, width = model.shape
+    return {
+        "name": INPUT,
+        "shape": ["pixels", 5],
+        "columns": ["u", "v", "r", "g", "b"],
+        "pixels": f"pixel centre (u column, v row) of the {width}x{height} image, integers from 0 (rounded to the "
+        "nearest pixel, clamped to the image, when a ratio model reads its reference)",
+        "colours": "linear tri-colour values (dark frame subtracted, 1 = the sensor's full range), filtered over the "
+        "gel as the model's training samples: smoothing_px (Gaussian sigma, px), smoothing_colour (bilateral colour "
+        "sigma, 0: none)",
+        "smoothing_px": model.smoothing_px,
+        "smoothing_colour": model.smoothing_colour,
+        "divided_inside": model.input_reference is not None,
+    }
+
+
+def _ratio_nodes(pb: ModuleType, reference: np.ndarray) -> tuple[list[onnx.NodeProto], list[onnx.TensorProto]]:
+    """The nodes and initializers that make :data:`RATIO_INPUT` of :data:`INPUT`: r, g, b over ``reference`` ((H, W,
+    3) float32, the model's ``input_reference``) at each pixel, u and v as they are.
+
+    The map is an initializer (H x W x 3 float32: 3.7 MB at 640x480), read with GatherND at the pixel's (row, column)
+    -- (v, u) rounded to the nearest integer and clamped to the image -- padded with two ones, and the whole input
+    divided by it: the same float32 division as :func:`nlipscalib.learn.model.model_inputs` at integer pixels, so
+    the first layer gets the same bits as PyTorch does. Why a stored map and a gather: the map is the prefilter of
+    the reference frame (a bilateral filter in OpenCV), which the graph could not redo exactly, and a gather is a few
+    memory reads a pixel, against the network's thousands of multiply-adds.
+    """
+    height, width = reference.shape[:2]
+    weights = [
+        _int_tensor(pb, [1, 0], "vu_columns"),
+        _tensor(pb, np.zeros(2, np.float32), "vu_lowest"),
+        _tensor(pb, np.array([height - 1, width - 1], np.float32), "vu_highest"),
+        _tensor(pb, reference, "reference"),
+        _int_tensor(pb, [0, 2, 0, 0], "ratio_pads"),  # (N, 3) -> (N, 5): two columns of ones before r, g, b
+        _tensor(pb, np.array(1.0, np.float32), "one"),
+    ]
+    nodes = [
+        _node(pb, "Gather", [INPUT, "vu_columns"], ["vu"], "pixel", axis=1),
+        _node(pb, "Round", ["vu"], ["vu_nearest"], "nearest"),
+        _node(pb, "Max", ["vu_nearest", "vu_lowest"], ["vu_above"], "clamp_low"),
+        _node(pb, "Min", ["vu_above", "vu_highest"], ["vu_inside"], "clamp_high"),
+        _node(pb, "Cast", ["vu_inside"], ["vu_index"], "index", to=pb.TensorProto.INT64),
+        _node(pb, "GatherND", ["reference", "vu_index"], ["reference_colour"], "reference_at_pixel"),
+        _node(pb, "Pad", ["reference_colour", "ratio_pads", "one"], ["divisor"], "divisor"),
+        _node(pb, "Div", [INPUT, "divisor"], [RATIO_INPUT], "ratio"),
+    ]
+    return nodes, weights
 
 
 def check_export(path: str | Path, model: LoadedModel) -> bytes:
@@ -203,7 +281,9 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
     whatever its sender wrote. It is run only when it is, up to float32 rounding, the graph :func:`export_proto`
     writes for ``model``: the same nodes, input and output (NLiPsNet's ``uvrgb`` (pixels, 5) -> ``normal``
     (pixels, 3)), standard operators of the same opset, and weights within
-    :data:`~nlipscalib.core.tolerances.ONNX_WEIGHT_TOL` of the model's folded weights. So it computes what the
+    :data:`~nlipscalib.core.tolerances.ONNX_WEIGHT_TOL` of the model's folded weights (a ratio model's reference map
+    likewise, its integer initializers exactly). A ratio model's export of an earlier release, whose input was the
+    ratios (:func:`_ratio_outside`), is refused with the way to write it again. So it computes what the
     model computes; what onnxruntime could be made to do by other graphs (read "external data" files named in
     the graph, anywhere before onnxruntime's December 2025 fix; load custom operators; fold a ConstantOfShape of
     terabytes while it optimises the graph) never starts. Its size is checked before it is read.
@@ -233,6 +313,9 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
         raise CaptureError(
             f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
         )
+    old = _ratio_outside(proto, expected)
+    if old:  # the model's own export, of an earlier release: named as such, not as a graph of another model
+        raise CaptureError(f"{path}: {old}: {again}")
     problem = _graph_difference(proto, expected)
     if problem:
         raise CaptureError(f"{path}: {problem}, not the export of {model.path}: {again}")
@@ -279,6 +362,21 @@ def _contract(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     return f"its graph maps {got}, NLiPsNet maps {_describe(want.input[0])} -> {_describe(want.output[0])}"
 
 
+def _ratio_outside(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """A ratio model's export from before its graph divided the colours (up to 2026-12-07): it took the ratios as its
+    input, where the export takes the linear colours. Run as it is with this release's inputs, its normals would be
+    wrong without an error (17 deg on average on a twin press), so it is refused with the way to write it again."""
+    divides = "reference" in {t.name for t in expected.graph.initializer}
+    if not divides or "reference" in {t.name for t in proto.graph.initializer}:
+        return None
+    if {p.key: p.value for p in proto.metadata_props}.get("colour_input") != "ratio":
+        return None
+    return (
+        "exported before 2026-12-07, when a ratio model's ONNX file took the colours over the reference as its input "
+        "(now its graph divides them itself and takes the linear colours, as every model's does)"
+    )
+
+
 def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     """Nodes other than the export's (each compared whole: operator, inputs, outputs, attributes, subgraphs)."""
     nodes, want = list(proto.graph.node), list(expected.graph.node)
@@ -296,11 +394,15 @@ def _weights(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     if sorted(weights) != sorted(t.name for t in want):
         return f"its weights are named {sorted(weights)}, the export's {sorted(t.name for t in want)}"
     for tensor in want:
-        got, need = weights[tensor.name], _float_values(tensor)
-        values = _float_values(got) if tuple(got.dims) == need.shape else None
+        got, need = weights[tensor.name], _values(tensor)
+        values = _values(got) if tuple(got.dims) == need.shape and got.data_type == tensor.data_type else None
         if values is None:
             got_type = f"{tuple(got.dims)} of type {got.data_type}"
             return f"its weight {tensor.name!r} is {got_type}, the model's {need.shape} of type {tensor.data_type}"
+        if need.dtype.kind == "i":  # pixel indices and pads: exactly the export's
+            if not np.array_equal(values, need):
+                return f"its weight {tensor.name!r} is {values.tolist()}, the export's {need.tolist()}"
+            continue
         off = float(np.max(np.abs(values.astype(np.float64) - need), initial=0.0))
         scale = float(np.max(np.abs(need), initial=0.0))
         if not off <= ONNX_WEIGHT_TOL * max(scale, np.finfo(np.float32).tiny):
@@ -320,16 +422,22 @@ def _extras(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     return None
 
 
-def _float_values(tensor: onnx.TensorProto) -> np.ndarray | None:
-    """The float32 values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or ``float_data``);
-    None when it is of another type or holds another number of values than its dims say."""
-    if tensor.data_type != onnx_messages().TensorProto.FLOAT:
+def _values(tensor: onnx.TensorProto) -> np.ndarray | None:
+    """The float32 or int64 values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or
+    ``float_data`` / ``int64_data``); None when it is of another type or holds another number of values than its dims
+    say."""
+    pb = onnx_messages().TensorProto
+    kinds = {pb.FLOAT: ("<f4", "float_data"), pb.INT64: ("<i8", "int64_data")}
+    if tensor.data_type not in kinds:
         return None
+    dtype, field = kinds[tensor.data_type]
     count = int(np.prod(tensor.dims, dtype=np.int64))
     if tensor.raw_data:
-        values = np.frombuffer(tensor.raw_data, "<f4") if len(tensor.raw_data) == 4 * count else None
+        size = np.dtype(dtype).itemsize
+        values = np.frombuffer(tensor.raw_data, dtype) if len(tensor.raw_data) == size * count else None
     else:
-        values = np.asarray(tensor.float_data, np.float32) if len(tensor.float_data) == count else None
+        listed = getattr(tensor, field)
+        values = np.asarray(listed, dtype) if len(listed) == count else None
     return None if values is None else values.reshape(tuple(tensor.dims))
 
 
@@ -371,6 +479,7 @@ def quantized_int8(model: bytes) -> bytes:
                 weight_type=quantization.QuantType.QInt8,
                 per_channel=True,
                 nodes_to_exclude=[layers[0], layers[-1]],
+                op_types_to_quantize=["MatMul"],  # the network's layers alone: never a ratio model's reference map
             )
         finally:
             logging.getLogger().disabled = was
@@ -378,7 +487,8 @@ def quantized_int8(model: bytes) -> bytes:
 
 
 class OnnxNet:
-    """onnxruntime session of an exported NLiPsNet: ``(N, 5) float32 -> (N, 3)`` unit normals.
+    """onnxruntime session of an exported NLiPsNet: ``(N, 5) float32 -> (N, 3)`` unit normals, its input the export's
+    (:data:`INPUT`: pixels and filtered linear colours, for a ratio model too: its graph divides them).
 
     With ``threads`` > 1 the pixels are split into that many equal slices run concurrently, each on one
     onnxruntime thread: for these narrow layers that uses the cores far better than onnxruntime's own
@@ -441,13 +551,15 @@ def max_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def checked_parity(model: LoadedModel, onnx_path: str | Path, x: np.ndarray, threads: int = 0) -> float:
-    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on network inputs ``x``.
+    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the export's inputs ``x``.
 
     Parameters
     ----------
-    model : learn.model.LoadedModel -- the PyTorch side
+    model : learn.model.LoadedModel -- the PyTorch side, given ``x`` as inference gives it (for a ratio model, its
+        colours over the model's reference: ``learn.model.model_inputs``)
     onnx_path : its export
-    x : (N, 5) float32 -- normalised network inputs (``learn.model.model_inputs``)
+    x : (N, 5) float32 -- the export's input (:data:`INPUT`): (u, v) pixels, filtered linear colours
+        (``learn.model.model_inputs`` without a reference)
     threads : onnxruntime threads (0: the usable cores)
 
     Raises
@@ -456,8 +568,10 @@ def checked_parity(model: LoadedModel, onnx_path: str | Path, x: np.ndarray, thr
     """
     import torch
 
+    from .model import model_inputs
+
     with torch.inference_mode():
-        expected = model.net(torch.from_numpy(x)).numpy()
+        expected = model.net(torch.from_numpy(model_inputs(x[:, :2], x[:, 2:], model.input_reference))).numpy()
     angle = max_angle_deg(OnnxNet(onnx_path, model, threads=threads)(x), expected)
     if not angle < ONNX_PARITY_DEG:
         raise CaptureError(

@@ -69,8 +69,9 @@ def test_the_result_folder_is_published_with_its_ply_or_not_at_all(
 @pytest.mark.parametrize("trained_model", MODELS)
 def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained_model, twin_presses, request):
     """Only the changed pixels go through the network, given the colours its training samples were (filtered; for a
-    model of colour ratios then over its reference's); the rest keep the undeformed dome's normals, whatever the
-    network would say there."""
+    model of colour ratios the runtime divides them by its reference's: the ONNX graph does, and PyTorch's runner,
+    so the runner is given the filtered linear colours either way); the rest keep the undeformed dome's normals,
+    whatever the network would say there."""
     predictor = Predictor(request.getfixturevalue(trained_model))
     calls = []
     run = predictor._run
@@ -95,7 +96,6 @@ def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained_model,
     divide = predictor.model.input_reference
     if divide is not None:  # a model of colour ratios: the reference frame itself is 1 wherever it lies above the floor
         assert predictor.model.colour_input == "ratio"
-        colours = colours / divide
         ones = prefilter(ref.linear(ref.tricolor)) / divide
         lit = predictor.valid & (divide > MIN_REFERENCE_COLOUR).all(-1)
         assert lit.sum() > 0.9 * predictor.valid.sum()
@@ -1640,12 +1640,14 @@ def test_a_model_of_colour_ratios_is_given_the_colours_over_its_reference(traine
     assert np.abs(linear - want).max() > 0.05
 
 
-def test_nlips_export_checks_a_ratio_model_on_colour_ratios(trained_ratio, tmp_path, monkeypatch):
-    """`nlips export`'s parity check gives the ONNX file and PyTorch the inputs inference gives them: for a model of
-    colour ratios, the reference's colours (10 % darker, as they are, brighter) over the reference's: 0.9, 1, 1.1."""
+def test_nlips_export_checks_a_ratio_model_on_the_linear_colours_it_divides(trained_ratio, tmp_path, monkeypatch):
+    """`nlips export`'s parity check gives the ONNX file the inputs inference gives it, the reference's linear colours
+    (10 % darker, as they are, brighter), which a ratio model's graph divides by its reference itself (PyTorch is given
+    them divided: 0.9, 1, 1.1)."""
     import shutil
 
     from nlipscalib.learn import onnx_export
+    from nlipscalib.learn.model import load_model
 
     model = tmp_path / "ratio.pt"
     shutil.copy(trained_ratio, model)
@@ -1654,6 +1656,9 @@ def test_nlips_export_checks_a_ratio_model_on_colour_ratios(trained_ratio, tmp_p
     monkeypatch.setattr(onnx_export, "checked_parity", lambda m, p, x, **kw: seen.append(x) or check(m, p, x, **kw))
     assert main(["export", str(model)]) == 0
     (x,) = seen
-    # the three blocks (darker, as they are, brighter): about 0.9, 1, 1.1 (the raw colours over the filtered ones)
-    medians = [float(np.median(block[:, 2:])) for block in np.split(x, 3)]
-    np.testing.assert_allclose(medians, [0.9, 1.0, 1.1], atol=0.01)
+    divide = load_model(model).input_reference
+    # the three blocks (darker, as they are, brighter): linear colours, about 0.9, 1, 1.1 times the filtered reference's
+    # (the raw colours over the filtered ones)
+    ratios = [block[:, 2:] / divide[block[:, 1].astype(int), block[:, 0].astype(int)] for block in np.split(x, 3)]
+    np.testing.assert_allclose([float(np.median(r)) for r in ratios], [0.9, 1.0, 1.1], atol=0.01)
+    assert float(np.median(np.split(x, 3)[1][:, 2:])) < 0.9  # not the ratios: the linear colours (gel's 0.3-0.9)

@@ -59,7 +59,7 @@ def test_onnx_matches_pytorch_within_a_tenth_of_a_degree(calib, trained_model, t
     model = load_model(request.getfixturevalue(trained_model))
     path = export_onnx(model, tmp_path / "net.onnx")
     s = calib.load(HELD_OUT)
-    x = model_inputs(s["pixel"], s["rgb"], model.input_reference)  # the network's inputs: ratios for a ratio model
+    x = model_inputs(s["pixel"], s["rgb"])  # the export's inputs, every model's: a ratio model's graph divides them
     assert max_angle_deg(OnnxNet(path, model)(x), net_predict(model, s["pixel"], s["rgb"])) < 0.1
 
 
@@ -85,7 +85,7 @@ def test_int8_onnx_stays_close_to_the_float_network(calib, trained_model, tmp_pa
     model = load_model(request.getfixturevalue(trained_model))
     path = export_onnx(model, tmp_path / "net.onnx")
     s = calib.load(HELD_OUT)
-    x = model_inputs(s["pixel"], s["rgb"], model.input_reference)
+    x = model_inputs(s["pixel"], s["rgb"])  # the export's inputs (a ratio model's graph divides them)
     int8, exact = OnnxNet(path, model, int8=True)(x), net_predict(model, s["pixel"], s["rgb"])
     angle = np.degrees(np.arccos(np.clip(np.sum(int8 * exact, -1), -1, 1)))
     assert angle.mean() < 0.5 and np.percentile(angle, 99) < 2.0, (angle.mean(), angle.max())
