@@ -857,11 +857,16 @@ def test_a_result_another_run_is_inferring_is_waited_for_and_kept_not_inferred_t
     def other_run(publish: bool) -> threading.Thread:
         held = threading.Event()
 
+        waits_before = caplog.text.count("waiting for it")
+
         def run() -> None:
             with claims.claim(folder) as mine:
                 assert mine
                 held.set()
-                time.sleep(0.6)
+                # held until the command says it waits (a fixed sleep let a slow, loaded start miss the claim)
+                deadline = time.time() + 300
+                while caplog.text.count("waiting for it") == waits_before and time.time() < deadline:
+                    time.sleep(0.02)
                 if publish:
                     shutil.copytree(made, folder)
                 released.append(time.time())
