@@ -32,7 +32,8 @@ def test_the_outline_rings_count_8_neighbour_steps_from_the_black_beyond():
     gel = (rows - 24) ** 2 + (cols - 32) ** 2 < 20**2
     ring = outline_rings(gel, 6)
     for k in range(6):  # ring k: k + 1 steps of the 3x3 square from the nearest pixel off the gel
-        np.testing.assert_array_equal(ring == k, gel_outline(gel, k + 1) & ~gel_outline(gel, k) if k else gel_outline(gel))
+        inside = gel_outline(gel, k) if k else np.zeros_like(gel)
+        np.testing.assert_array_equal(ring == k, gel_outline(gel, k + 1) & ~inside)
     assert ((ring >= 0) == gel_outline(gel, 6)).all() and (ring[~gel] == -1).all() and (ring[24, 32] == -1)
     square = np.zeros((9, 9), bool)
     square[1:8, 1:8] = True  # a 7x7 square: its rings are concentric squares, the centre the fourth
@@ -40,7 +41,7 @@ def test_the_outline_rings_count_8_neighbour_steps_from_the_black_beyond():
     assert (outline_rings(np.ones((48, 64), bool), 6) == -1).all()  # the frame's own border is no outline
 
 
-def test_the_undeformed_outline_is_held_to_the_reference_tapering_inward_and_a_gel_filling_views_weights_are_as_before():
+def test_the_undeformed_outline_is_held_to_the_reference_tapering_inward_and_a_gel_filling_view_is_as_before():
     """On a view past the gel the anchored pixels of its outline and of the ring inside it weigh OUTLINE_HOLD times an
     anchor (the outline's partly covered light pulled the depth off the reference at an anchor's weight:
     benchmarks/RESULTS.md, s37-outline), the next OUTLINE_HOLD_TAPER rings a decade less a ring (s38-outline34); a
