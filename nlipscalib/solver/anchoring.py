@@ -14,7 +14,7 @@ import numpy as np
 from ..core import tolerances
 from .contact import ContactMap
 from .nlips import SolveResult
-from .outline import gel_outline
+from .outline import outline_rings
 
 ANCHOR_MIN_FRACTION = 0.02
 """Anchoring is off (weak evidence) when fewer than this fraction of the gel's pixels fit the undeformed model at noise
@@ -33,10 +33,19 @@ light divided by its true coverage (the render's alpha through the lens's blur) 
 1e4 and 1e5 held alike, ~1e3 a little less. Benchmarks/RESULTS.md, s37-outline."""
 
 OUTLINE_HOLD_WIDTH = 2
-"""Rings held from the outline in (:data:`OUTLINE_HOLD`): the outline and the ring inside it. Why two: a pixel's
-normal is its depth's slope to its neighbours, and the outline's inner neighbour kept the solve's say over it. The
-same solves with the outline alone held: outline 0.87 / 1.13 deg, next ring 1.10 / 2.03, whole gel 0.682 / 1.947;
+"""Rings held from the outline in at the full :data:`OUTLINE_HOLD`: the outline and the ring inside it. Why two: a
+pixel's normal is its depth's slope to its neighbours, and the outline's inner neighbour kept the solve's say over it.
+The same solves with the outline alone held: outline 0.87 / 1.13 deg, next ring 1.10 / 2.03, whole gel 0.682 / 1.947;
 with two rings 0.47 / 0.43, 0.35 / 0.62, 0.644 / 1.890 (base 1.74 / 4.17, 1.33 / 3.92, 0.713 / 2.038)."""
+
+OUTLINE_HOLD_TAPER = 4
+"""Rings inside the :data:`OUTLINE_HOLD_WIDTH` whose anchored pixels are held a decade less a ring further in
+(1e4, 1e3, 1e2, 1e1 x an anchor), down to an anchor's weight. Why: a hold that stepped from 1e5 to 1 x an anchor made
+the first ring beyond it take up all the disagreement between the held depth and the data's -- the rim band's
+bounce light (1.9x its direct light at ring 2, 1.7x at ring 3), a design-LED solve's rim bulge (+33 um at rings
+3-4), the flank of a dent that reaches the outline (320x240 ``nlipstac_wide``, a cube at polar 70, disks: its
+contact's pixels in rings 3-4 9.84 -> 12.46 deg with the step); tapered, the whole gel 1.099 -> 1.004 deg, those
+pixels 9.57 (benchmarks/RESULTS.md, s38-outline34)."""
 
 
 def anchor_weights(
@@ -49,7 +58,7 @@ def anchor_weights(
 ) -> tuple[np.ndarray | None, str]:
     """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed, ``1 + weight
     * OUTLINE_HOLD`` where such a pixel is on the gel's outline or the ring inside it (a view past the gel:
-    :data:`OUTLINE_HOLD`).
+    :data:`OUTLINE_HOLD`), a decade less a ring further in for :data:`OUTLINE_HOLD_TAPER` rings.
 
     Parameters
     ----------
@@ -85,10 +94,16 @@ def anchor_weights(
     weights = np.ones(mask.shape)
     weights[pins] += weight
     note = f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
-    held = pins & gel_outline(gel, OUTLINE_HOLD_WIDTH)  # none on a gel-filling view: its weights are as they were
+    ring = outline_rings(gel, OUTLINE_HOLD_WIDTH + OUTLINE_HOLD_TAPER)  # none on a gel-filling view: as it was
+    held = pins & (ring >= 0)
     if held.any():
-        weights[held] = 1 + weight * OUTLINE_HOLD
-        note += f", {int(held.sum())} of them at the gel's outline held to the reference"
+        steps = np.maximum(ring[held] - (OUTLINE_HOLD_WIDTH - 1), 0)  # 0 on the two outer rings, 1, 2, ... inside
+        weights[held] = 1 + weight * OUTLINE_HOLD / 10.0**steps
+        full = int((held & (ring < OUTLINE_HOLD_WIDTH)).sum())
+        note += (
+            f", {full} of them at the gel's outline held to the reference ({int(held.sum()) - full} more within "
+            f"{OUTLINE_HOLD_WIDTH + OUTLINE_HOLD_TAPER} px of it, less)"
+        )
     return weights, note
 
 

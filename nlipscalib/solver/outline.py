@@ -21,3 +21,17 @@ def gel_outline(valid: np.ndarray, width: int = 1) -> np.ndarray:
     valid : (H, W) bool -- the reference's pixels on the gel (finite depth); width : rings, >= 1.
     """
     return valid & masks.dilate(~valid, width, masks.SQUARE)
+
+
+def outline_rings(valid: np.ndarray, rings: int) -> np.ndarray:
+    """(H, W) int8 -- each pixel of ``valid``'s ring from the outline: 0 on :func:`gel_outline`, 1 on the ring inside
+    it, ... up to ``rings`` - 1; -1 further in and off ``valid`` (none on a gel-filling view).
+
+    valid : (H, W) bool -- the reference's pixels on the gel; rings : >= 1.
+    """
+    out = np.full(valid.shape, -1, np.int8)
+    reach = ~valid
+    for k in range(rings):  # one 8-neighbour step a ring: gel_outline(valid, k + 1) is the rings 0..k
+        reach = masks.dilate(reach, 1, masks.SQUARE)
+        out[valid & reach & (out < 0)] = k
+    return out
