@@ -188,10 +188,16 @@ def _check_guarded(workers: int, scheduler: str | None) -> None:
     ``local:N`` Dask cluster's) started from a script's top level outside ``if __name__ == "__main__":``
     (:func:`nlipscalib.core.main_guard.check_main_guarded`, as ``solve_presses`` does).
 
+    ``workers`` (a whole number >= 1: "2" failed in Python's comparison of str and int, 0 ran) and ``scheduler`` are
+    checked first (s38-apikinds).
+
     Why: the spawned workers import the caller's script again and so ran its ``run_experiment`` again, each failing
     in multiprocessing's bootstrapping traceback, and every task came back failed (s36-apileft)."""
+    from ..core.errors import check_kind, check_whole
     from ..core.main_guard import check_main_guarded
 
+    check_whole(workers, "workers", minimum=1)
+    check_kind(scheduler, (str, type(None)), "scheduler", "None, 'local:N' or a Dask scheduler's address")
     local = check_scheduler(scheduler)
     if scheduler is None and workers > 1:
         check_main_guarded(f"running the experiment's tasks in {workers} processes (workers={workers})")
@@ -208,17 +214,15 @@ def _check_arguments(
     out: object,
     report: object,
     size: object,
-    workers: object,
-    scheduler: object,
     solver_options: object,
 ) -> tuple[Path, Path]:
     """``out`` and ``report`` as Paths; an NlipsError naming the argument of :func:`run_experiment` that is of
     another kind than it takes (or out of range), before any task is planned or folder held.
 
     Why: ``run_experiment("q1", ...)``, a dict or another experiment's config for ``cfg``, ``out`` None,
-    ``workers="2"`` or ``solver_options="fast"`` failed in Python's AttributeError or TypeError from inside the
-    planning, and ``workers=0`` or ``size=3`` ran (s38-apikinds)."""
-    from ..core.errors import PATH, check_kind, check_whole
+    or ``solver_options="fast"`` failed in Python's AttributeError or TypeError from inside the planning, and
+    ``size=3`` ran (s38-apikinds; ``workers`` and ``scheduler``: :func:`_check_guarded`)."""
+    from ..core.errors import PATH, check_kind
 
     check_kind(exp, Experiment, "exp", "an Experiment (nlipscalib.experiments.get(name))")
     made_by_size = f"exp.config(size), e.g. {exp.name}.config('quick')"
@@ -226,10 +230,6 @@ def _check_arguments(
     check_kind(out, PATH, "out", "the work folder's path (str or Path)")
     check_kind(report, PATH, "report", "the report folder's path (str or Path)")
     check_kind(size, str, "size", f"the size's name ({', '.join(exp.sizes)}, or 'custom' for a config of your own)")
-    check_whole(workers, "workers", minimum=1)
-    check_kind(
-        scheduler, (str, type(None)), "scheduler", "None (workers here), 'local:N' or a Dask scheduler's address"
-    )
     check_kind(solver_options, (dict, type(None)), "solver_options", "a dict of SolverOptions fields, or None")
     if solver_options:  # each field and its value checked as a SolverOptions, before hours of tasks fail on it
         from ..solver import SolverOptions
@@ -258,10 +258,10 @@ def run_experiment(
     Returns the report's JSON document (also written to ``report/results.json``).
     """
     start = time.perf_counter()
-    out, report = _check_arguments(exp, cfg, out, report, size, workers, scheduler, solver_options)
+    _check_guarded(workers, scheduler)  # its kinds first; said before the rest: the script's own mistake
+    out, report = _check_arguments(exp, cfg, out, report, size, solver_options)
     for name, flag in (("keep_presses", keep_presses), ("keep_old", keep_old), ("progress", progress)):
         check_flag(flag, name)
-    _check_guarded(workers, scheduler)
     tasks = keeping_old(exp.tasks(cfg, solver_options), keep_old)
     settings = run_settings(exp, cfg, size, solver_options)
     if workers > 1 and scheduler is None:  # the count asked for, said when it likely exceeds the memory available
