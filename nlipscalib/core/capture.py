@@ -35,7 +35,7 @@ import numpy as np
 from .. import __version__
 from .atomic import atomic_dir, write_json
 from .camera import Camera
-from .errors import PATH, CaptureError, ShapeError, check_kind
+from .errors import PATH, CaptureError, ConfigError, ShapeError, check_kind
 from .imageio import png_size, read_png_bytes, write_png16
 from .leds import Led, Leds
 from .prefetch import prefetch_images
@@ -452,8 +452,8 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         next work runs beside the decoding; the first read of the images waits for it
     """
     check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
-    if decode not in (True, False, "background"):
-        raise ValueError(f"decode must be True, False or 'background', got {decode!r}")
+    if not any(decode is mode for mode in (True, False)) and decode != "background":
+        raise ConfigError(f"decode must be True, False or 'background', got {decode!r}")
     folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)

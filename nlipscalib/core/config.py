@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import numbers
 import tomllib
@@ -301,6 +302,27 @@ def closest(typed: str, known: Sequence[str]) -> str | None:
     return close[0] if close else None
 
 
+def check_field_kinds(obj: Any, where: str) -> None:
+    """ConfigError "``where``.FIELD: expected ..." for the first field of the config dataclass ``obj`` whose value
+    is not of its annotated kind (an int field given 2.5 or "2", a float field "0.1", a flag "no"), as a config
+    file's value is checked (:func:`from_mapping`); call it first in ``__post_init__``.
+
+    Why: ``SolverOptions(max_iters=2.5)`` was taken (and ran 2.5 iterations' loop bound), ``SolverOptions(max_iters=
+    "2")`` failed in Python's "'<' not supported between instances of 'str' and 'int'" (s38-apikinds)."""
+    for name, hint in _field_hints(type(obj)).items():
+        value = getattr(obj, name)
+        if type(value) is hint or (hint is float and type(value) is int):  # the usual case, at a dict look-up's cost
+            continue
+        _convert(hint, value, f"{where}.{name}" if where else name)
+
+
+@functools.cache
+def _field_hints(cls: type) -> dict[str, Any]:
+    """The annotated kind of each init field of the dataclass ``cls`` (resolved once per class)."""
+    hints = typing.get_type_hints(cls)
+    return {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
+
+
 def _convert(tp: Any, value: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
@@ -346,4 +368,7 @@ def _convert(tp: Any, value: Any, where: str) -> Any:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {value!r}")
         return value
+    if (tp is dict or origin is dict) and not isinstance(value, dict):
+        # a dataset spec's `render = 16` was taken, and failed (or was dropped) later (s38-apikinds)
+        raise ConfigError(f"{where}: expected a table ({{key = value, ...}}), got {value!r}")
     return value

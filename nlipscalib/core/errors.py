@@ -9,6 +9,7 @@ from __future__ import annotations
 import numbers
 import os
 import reprlib
+from collections.abc import Mapping
 from types import ModuleType
 
 
@@ -76,12 +77,16 @@ def check_paths(
     ``kinds`` (default paths, str or Path; ``each`` says what one must be): one path alone, whose characters would be
     taken for paths, is refused with ``what`` and how to give one (``[path]``).
 
+    A dict is refused too (its keys would be taken).
+
     Why: ``solve_presses("out/press")`` went through the string's characters as press folders; ``solve_presses(3)``
     and ``build_dataset([3], ...)`` failed with Python's "'int' object is not iterable" or "expected str, bytes or
     os.PathLike object" from inside (s37 capcheck)."""
-    if isinstance(values, PATH):
+    if isinstance(values, PATH) and str in _as_tuple(kinds):
         raise ShapeError(f"{name} must be {what}, got one path {os.fspath(values)!r}: give [{os.fspath(values)!r}]")
     try:
+        if isinstance(values, (str, bytes, Mapping)):  # its characters, or a dict's keys: not what was meant
+            raise TypeError
         listed = list(values)
     except TypeError:
         raise ShapeError(f"{name} must be {what}, got {type(values).__name__} {reprlib.repr(values)}") from None
@@ -105,3 +110,32 @@ def check_kind(value: object, kinds: type | tuple[type, ...], name: str, what: s
 
 def _as_tuple(kinds: type | tuple[type, ...]) -> tuple[type, ...]:
     return kinds if isinstance(kinds, tuple) else (kinds,)
+
+
+def check_flag(value: object, name: str, none: bool = False) -> None:
+    """ShapeError "``name`` must be True or False, got ..." unless ``value`` is a bool (NumPy's too; None with
+    ``none``).
+
+    Why: a flag given as a string (``solve_press(press, check_sensor="no")``, ``solve_folder(press, overwrite="no")``)
+    is truthy and did the opposite of what it said, without a word (s38-apikinds)."""
+    numpy_bool = type(value).__module__ == "numpy" and type(value).__name__ in ("bool", "bool_")
+    if isinstance(value, bool) or numpy_bool or (none and value is None):
+        return
+    raise ShapeError(
+        f"{name} must be True or False{' or None' if none else ''}, got {type(value).__name__} {reprlib.repr(value)}"
+    )
+
+
+def check_whole(value: object, name: str, minimum: int = 0) -> int:
+    """``value`` unless it is not a whole number (an int or NumPy's, never a bool nor a float such as 2.0: a
+    ShapeError) or is below ``minimum`` (a ConfigError); both name ``name``.
+
+    Why: counts given as 2.0, "2" or -1 (``run_experiment(..., workers="2")``, ``solve_press(..., max_outer=-1)``)
+    failed in Python's comparison of str and int deep inside, or ran with a meaningless count (s38-apikinds)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ShapeError(
+            f"{name} must be a whole number >= {minimum}, got {type(value).__name__} {reprlib.repr(value)}"
+        )
+    if value < minimum:
+        raise ConfigError(f"{name} must be a whole number >= {minimum}, got {value}")
+    return int(value)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -336,6 +337,12 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
     arrays, wrong shapes or dtypes.
     """
     check_kind(folder, PATH, "folder", "a reconstruction folder's path (str or Path)")
+    pair = isinstance(shape, (tuple, list)) and len(shape) == 2
+    if shape is not None and not (
+        pair and all(isinstance(n, numbers.Integral) and not isinstance(n, bool) for n in shape)
+    ):
+        # "64x48" was compared with the arrays' shape and reported as a damaged result (s38-apikinds)
+        check_kind(shape, (), "shape", "(H, W) pixels (press.camera.shape), or None")
     folder = Path(folder)
     path, rpath = folder / RESULT_FILE, folder / REPORT_FILE
     if not path.is_file():

@@ -25,7 +25,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..core.errors import DeviceError, ShapeError
+from ..core.errors import NUMBER, ConfigError, DeviceError, ShapeError, check_kind, check_whole
 from . import protocol as p
 from .errors import (
     UNPLUGGED_REASON,
@@ -158,6 +158,7 @@ class LedController:
         expected_leds : int, optional
             Fail unless the board drives exactly this many LEDs (the sensor design's count).
         """
+        _check_timing(timeout, retries, reconnect_s)
         baudrate = check_baudrate(baudrate, f"{url}: baudrate")  # an int from here on (the messages compare it)
         ctrl = cls(url, timeout=timeout, retries=retries, reconnect_s=reconnect_s, on_reset=on_reset, baudrate=baudrate)
         ctrl._port = open_port(url, baudrate=baudrate, write_timeout=timeout)
@@ -541,6 +542,17 @@ def _rate_hint(baudrate: int) -> str:
     if baudrate != BAUD_RATE:
         return f"The port is at {baudrate} baud but the nlips LED firmware runs at {BAUD_RATE} (--baud)."
     return f"The port is at {BAUD_RATE} baud, the nlips LED firmware's rate; a board at another rate needs --baud."
+
+
+def _check_timing(timeout: object, retries: object, reconnect_s: object) -> None:
+    """An NlipsError naming :meth:`LedController.open`'s ``timeout``, ``retries`` or ``reconnect_s`` when it is of
+    another kind or out of range, before the port is opened. Why: ``timeout="1"`` failed inside pyserial ("'<' not
+    supported between instances of 'str' and 'int'") (s38-apikinds)."""
+    for name, value in (("timeout", timeout), ("reconnect_s", reconnect_s)):
+        check_kind(value, NUMBER, name, "a number of seconds")
+        if not value > 0:
+            raise ConfigError(f"{name} must be > 0 seconds, got {value}")
+    check_whole(retries, "retries", minimum=0)
 
 
 def _check_versions(url: str, info: p.BoardInfo) -> None:

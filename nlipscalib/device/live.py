@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from ..core.atomic import write_by_name
-from ..core.errors import PATH, ConfigError, ShapeError, check_kind
+from ..core.errors import NUMBER, PATH, ConfigError, ShapeError, check_kind, check_whole
 from ..core.imageio import save_npz
 from .camera import EndOfFrames
 
@@ -188,6 +188,9 @@ def stream(
     if isinstance(sinks, (str, bytes)) or not isinstance(sinks, Iterable):
         raise ShapeError(f"sinks must be a list of sinks (SaveSink(folder), callables), got {type(sinks).__name__}")
     sinks = list(sinks)
+    if max_frames is not None:  # -1 or 2.5 streamed until Ctrl-C, "10" failed in Python's "<" (s38-apikinds)
+        check_whole(max_frames, "max_frames", minimum=0)
+    check_kind(report_every_s, NUMBER, "report_every_s", "a number of seconds")
     stats = LiveStats() if stats is None else stats
     t_start = last_report = time.perf_counter()
     frames_at_report = 0

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.atomic import whole_dir, write_text
 from ..core.config import did_you_mean, from_mapping, read_config_file, to_mapping
-from ..core.errors import ConfigError, NlipsError
+from ..core.errors import ConfigError, NlipsError, check_flag
 from . import check, markdown
 from .plan import build_tasks
 from .provenance import machine, made_by, software
@@ -188,10 +188,16 @@ def _check_guarded(workers: int, scheduler: str | None) -> None:
     ``local:N`` Dask cluster's) started from a script's top level outside ``if __name__ == "__main__":``
     (:func:`nlipscalib.core.main_guard.check_main_guarded`, as ``solve_presses`` does).
 
+    ``workers`` (a whole number >= 1: "2" failed in Python's comparison of str and int, 0 ran) and ``scheduler`` are
+    checked first (s38-apikinds).
+
     Why: the spawned workers import the caller's script again and so ran its ``run_experiment`` again, each failing
     in multiprocessing's bootstrapping traceback, and every task came back failed (s36-apileft)."""
+    from ..core.errors import check_kind, check_whole
     from ..core.main_guard import check_main_guarded
 
+    check_whole(workers, "workers", minimum=1)
+    check_kind(scheduler, (str, type(None)), "scheduler", "None, 'local:N' or a Dask scheduler's address")
     local = check_scheduler(scheduler)
     if scheduler is None and workers > 1:
         check_main_guarded(f"running the experiment's tasks in {workers} processes (workers={workers})")
@@ -200,6 +206,36 @@ def _check_guarded(workers: int, scheduler: str | None) -> None:
             f"running the experiment's tasks on a local cluster of {local} processes ({scheduler})",
             in_process="scheduler=None and workers=1",
         )
+
+
+def _check_arguments(
+    exp: object,
+    cfg: object,
+    out: object,
+    report: object,
+    size: object,
+    solver_options: object,
+) -> tuple[Path, Path]:
+    """``out`` and ``report`` as Paths; an NlipsError naming the argument of :func:`run_experiment` that is of
+    another kind than it takes (or out of range), before any task is planned or folder held.
+
+    Why: ``run_experiment("q1", ...)``, a dict or another experiment's config for ``cfg``, ``out`` None,
+    or ``solver_options="fast"`` failed in Python's AttributeError or TypeError from inside the planning, and
+    ``size=3`` ran (s38-apikinds; ``workers`` and ``scheduler``: :func:`_check_guarded`)."""
+    from ..core.errors import PATH, check_kind
+
+    check_kind(exp, Experiment, "exp", "an Experiment (nlipscalib.experiments.get(name))")
+    made_by_size = f"exp.config(size), e.g. {exp.name}.config('quick')"
+    check_kind(cfg, exp.config_cls, "cfg", f"a {exp.config_cls.__name__} ({made_by_size})")
+    check_kind(out, PATH, "out", "the work folder's path (str or Path)")
+    check_kind(report, PATH, "report", "the report folder's path (str or Path)")
+    check_kind(size, str, "size", f"the size's name ({', '.join(exp.sizes)}, or 'custom' for a config of your own)")
+    check_kind(solver_options, (dict, type(None)), "solver_options", "a dict of SolverOptions fields, or None")
+    if solver_options:  # each field and its value checked as a SolverOptions, before hours of tasks fail on it
+        from ..solver import SolverOptions
+
+        from_mapping(SolverOptions, dict(solver_options), "solver_options")
+    return Path(out), Path(report)
 
 
 def run_experiment(
@@ -222,7 +258,10 @@ def run_experiment(
     Returns the report's JSON document (also written to ``report/results.json``).
     """
     start = time.perf_counter()
-    _check_guarded(workers, scheduler)
+    _check_guarded(workers, scheduler)  # its kinds first; said before the rest: the script's own mistake
+    out, report = _check_arguments(exp, cfg, out, report, size, solver_options)
+    for name, flag in (("keep_presses", keep_presses), ("keep_old", keep_old), ("progress", progress)):
+        check_flag(flag, name)
     tasks = keeping_old(exp.tasks(cfg, solver_options), keep_old)
     settings = run_settings(exp, cfg, size, solver_options)
     if workers > 1 and scheduler is None:  # the count asked for, said when it likely exceeds the memory available

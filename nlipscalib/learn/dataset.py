@@ -48,7 +48,7 @@ from ..core import said_once
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
 from ..core.config import OMIT_AT, to_mapping
-from ..core.errors import PATH, CaptureError, ConfigError, check_kind, check_paths
+from ..core.errors import PATH, CaptureError, ConfigError, check_flag, check_kind, check_paths
 from ..core.file_checks import file_problem
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
 from ..core.imageio import save_npz
@@ -452,6 +452,8 @@ def build_dataset(
     check_kind(reference_folder, (*PATH, Press), "reference_folder", f"the undeformed capture: {each}")
     check_kind(out, PATH, "out", "the dataset folder's path (str or Path)")
     check_kind(cfg, (SamplingConfig, type(None)), "cfg", "a SamplingConfig, or None (defaults)")
+    check_kind(result_dir, str, "result_dir", "the reconstruction folder's name in each press (str)")
+    check_flag(progress, "progress")
     reference_folder = getattr(reference_folder, "folder", reference_folder)  # a loaded Press: its folder
     cfg = cfg or SamplingConfig()
     out = Path(out)

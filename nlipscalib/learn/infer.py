@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.config import said
-from ..core.errors import PATH, CaptureError, ConfigError, ShapeError, check_kind
+from ..core.errors import PATH, CaptureError, ConfigError, ShapeError, check_flag, check_kind
 from ..core.sensor_record import camera_response_of, response_table_of
 from ..core.sensor_response import CLIPPED_VALUE, linearise, undo_tone_curve
 from ..core.tolerances import (
@@ -120,6 +120,9 @@ class Predictor:
         reference: np.ndarray | None = None,
     ):
         check_kind(model_path, PATH, "model_path", "the model file's path (str or Path)")
+        check_kind(backend, str, "backend", "a backend's name ('auto', 'torch', 'onnx' ...)")
+        check_flag(depth, "depth")  # "no" is truthy: it integrated the depth (s38-apikinds)
+        check_flag(full_frame, "full_frame")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
             raise ConfigError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
         self.device = predictor_device(device, backend, full_frame)

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.config import OMIT_AT, did_you_mean
-from ..core.errors import PATH, ConfigError, check_kind
+from ..core.errors import PATH, ConfigError, check_flag, check_kind
 from .checkpoint import (
     check_sampling_record,
     checkpoint_path,
@@ -318,7 +318,9 @@ def train(
         Each epoch's device is in the history (``"device"``: "cpu" or "cuda"); a resume on another says so.
     progress : the epochs' bar on stderr, drawn only on a terminal or in a notebook (:mod:`nlipscalib.progress`)
     """
+    check_kind(dataset, (CalibrationDataset, str, os.PathLike), "dataset", "a CalibrationDataset or its folder's path")
     check_kind(cfg, TrainConfig, "cfg", "a TrainConfig (TrainConfig() is the paper's)")
+    check_flag(progress, "progress")
     check_kind(out, PATH, "out", "the model file's path (str or Path)")
     if Path(out).is_dir():  # the whole training ran, then its model's write failed naming a temporary file
         raise IsADirectoryError(errno.EISDIR, "a folder; give the path of the model file to write (.pt)", str(out))

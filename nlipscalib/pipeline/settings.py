@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+import numbers
+import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core import tolerances
-from ..core.errors import PATH, CaptureError, ConfigError, check_kind
+from ..core.errors import PATH, CaptureError, ConfigError, ShapeError, check_kind
 from ..core.sensor import UNRENDERED_DESIGN_KEYS
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when settings are made
@@ -317,11 +319,10 @@ def _resolve_roi(roi: str | Sequence[int] | None) -> str | tuple[int, ...] | Non
         return roi
     if isinstance(roi, str):
         raise ConfigError(f"roi must be 'auto', None or (x0, y0, w, h), got {roi!r}")
-    try:
-        box = tuple(int(v) for v in roi)
-    except (TypeError, ValueError):
-        box = ()
     from ..solver.press_checks import MIN_ROI_SIDE as side
+    from ..solver.press_checks import roi_numbers
+
+    box = roi_numbers(roi)  # four whole numbers (2.5 was taken for 2)
 
     if len(box) != 4 or min(box) < 0 or min(box[2:]) < side:  # the same minimum as the solver's check_roi
         raise ConfigError(f"roi {roi!r} must be (x0, y0, w, h) with x0, y0 >= 0, at least {side}x{side} pixels")
@@ -333,12 +334,19 @@ def _resolve_leds(
 ) -> tuple[tuple[int, ...] | None, tuple[Led, ...] | None, str | None, dict | None]:
     """(0-based subset or None, calibrated LEDs or None, LED file or None, the sensor the file records or None)
     from the ``leds`` argument."""
+    import numpy as np
+
     from ..core.ledfile import read_led_file
     from ..core.leds import Led
 
     if leds is None:
         return None, None, None, None
-    if isinstance(leds, (str, Path)):
+    if not isinstance(leds, (str, os.PathLike, Sequence, np.ndarray)):
+        raise ShapeError(
+            f"leds must be an LED file's path, '1,2,5', a sequence of Led or of 0-based indices, or None, "
+            f"got {type(leds).__name__} {leds!r}"
+        )
+    if isinstance(leds, (str, os.PathLike)):
         path = Path(leds)
         if path.suffix.lower() == ".json" or path.exists():  # a folder too: read_led_file says what it is
             led_file = read_led_file(path)
@@ -351,7 +359,7 @@ def _resolve_leds(
     leds = tuple(leds)
     if leds and all(isinstance(v, Led) for v in leds):
         return None, leds, None, None
-    if leds and all(isinstance(v, int) for v in leds):
+    if leds and all(isinstance(v, numbers.Integral) and not isinstance(v, (bool, np.bool_)) for v in leds):
         return leds, None, None, None
     raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
 
@@ -396,7 +404,7 @@ def _solver_keywords(given: dict | None) -> dict:
     import inspect
 
     from ..solver import solve_press
-    from ..solver.press_checks import check_modes
+    from ..solver.press_checks import check_keywords
 
     own = {"press", "roi", "leds", "options", "backend", "progress", "indirect"}
     params = {
@@ -404,11 +412,12 @@ def _solver_keywords(given: dict | None) -> dict:
         for name, p in inspect.signature(solve_press).parameters.items()
         if name not in own and p.default is not inspect.Parameter.empty
     }
+    check_kind(given, (Mapping, type(None)), "solver_keywords", "a dict of solve_press's keywords, or None")
     unknown = sorted(set(given or {}) - set(params))
     if unknown:
         raise ConfigError(f"unknown solver keywords {unknown}; solve_press accepts {sorted(params)}")
     keywords = params | dict(given or {})
-    check_modes(*(keywords[k] for k in ("interreflection", "bounces", "outer_relaxation", "coating_albedo")))
+    check_keywords(given or {}, list(params))
     if keywords["led_radius"] == 0.0:  # point LEDs, as before s32: not recorded, so earlier results keep their keys
         del keywords["led_radius"], keywords["emitters"]
     elif keywords["emitters"] is not None:  # recorded as the LED file holds them (JSON)

@@ -13,7 +13,17 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core import said_once
-from ..core.errors import PATH, CaptureError, ConfigError, NlipsError, NoContactError, check_kind, check_paths
+from ..core.errors import (
+    PATH,
+    CaptureError,
+    ConfigError,
+    NlipsError,
+    NoContactError,
+    check_flag,
+    check_kind,
+    check_paths,
+    check_whole,
+)
 from ..core.reconstruction import (
     Reconstruction,
     check_replaceable,
@@ -70,6 +80,8 @@ def solve_folder(
     ``out`` (its result is never replaced while it runs; see :func:`solve_presses`).
     """
     check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
+    check_kind(out, (*PATH, type(None)), "out", "the result folder's path (str or Path), or None (PRESS/nlips)")
+    _check_flags(overwrite=overwrite, progress=progress, announce_reuse=announce_reuse)
     settings = make_settings(
         reference=reference,
         roi=roi,
@@ -149,6 +161,8 @@ def solve_presses(
     from ..report import figure_level
 
     folders = check_paths(folders, "folders", "a list of press folders' paths (str or Path)")
+    check_whole(workers, "workers", minimum=1)
+    _check_flags(overwrite=overwrite, progress=progress, wait=wait)
     settings = make_settings(
         reference=reference,
         roi=roi,
@@ -162,8 +176,6 @@ def solve_presses(
     folders = [Path(f) for f in folders]
     if settings.reference is not None:  # the undeformed dome is the reference, not a press to solve
         folders = [f for f in folders if f.resolve() != settings.reference.resolve()]
-    if not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
     names = _names(folders)
     started = _fs_clock(folders)
     # a session's fault (swapped, aged LEDs) said once per call: a notebook's second call says it again
@@ -177,6 +189,12 @@ def solve_presses(
             # --overwrite: what another run of these settings published meanwhile is fresh, not solved a third time
             statuses |= _solve_batch(busy, names, settings, workers, overwrite, progress, figures, True, started)
     return {names[f]: statuses[f] for f in folders}
+
+
+def _check_flags(**flags: object) -> None:
+    """ShapeError naming the first of ``flags`` that is not True or False (``overwrite="no"`` overwrote)."""
+    for name, value in flags.items():
+        check_flag(value, name)
 
 
 def _hold_presses(held: contextlib.ExitStack, folders: list[Path], settings: SolveSettings) -> dict[Path, str]:

@@ -28,7 +28,7 @@ from ..core import said_once
 from ..core.atomic import check_free_space, check_writable, clean_interrupted
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
-from ..core.errors import ConfigError, NlipsError
+from ..core.errors import NUMBER, PATH, ConfigError, NlipsError, check_flag, check_kind, check_paths, check_whole
 from ..core.main_guard import check_main_guarded
 from ..core.press_folders import is_press_folder
 from ..core.press_meta import META_FILE
@@ -103,9 +103,10 @@ def run_dataset(
     verify : read every byte of each finished press's files and compare their CRC-32 with its checksums.json (a
         press that differs is rendered again); else their ends and sizes only (core.press_checksums)
     """
+    jobs = _check_arguments(scene, jobs, out, workers, stale_s)
+    for name, flag in (("progress", progress), ("overwrite", overwrite), ("verify", verify)):
+        check_flag(flag, name)
     out = Path(out)
-    if workers < 0:
-        raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
     with said_once.scope():  # each call warns of older renders again; inside a command, once with its own check
         check_existing(scene, jobs, out, overwrite)
     todo = [j for j in jobs if not is_complete(scene, j, out, overwrite, verify)]
@@ -150,6 +151,22 @@ def run_dataset(
                     pool.shutdown(wait=True, cancel_futures=True)
                     raise
     return result
+
+
+def _check_arguments(scene: object, jobs: object, out: object, workers: object, stale_s: object) -> list[PressJob]:
+    """``jobs`` as a list; an NlipsError naming the argument of :func:`run_dataset` of another kind (or out of range),
+    before any folder is looked at.
+
+    Why: a scene's name or a dict for ``scene``, the spec for ``jobs``, ``out`` None or ``workers="2"`` failed in
+    Python's AttributeError or TypeError from inside, and ``stale_s="60"`` or -1 was taken (s38-apikinds)."""
+    check_kind(scene, SceneConfig, "scene", "a SceneConfig (load_scene(...), or load_dataset_spec(path)[1])")
+    listed = check_paths(jobs, "jobs", "a list of PressJob (expand_jobs(spec))", PressJob, "a PressJob")
+    check_kind(out, PATH, "out", "the dataset folder's path (str or Path)")
+    check_whole(workers, "workers", minimum=0)  # 0: one per two cores
+    check_kind(stale_s, NUMBER, "stale_s", "a number of seconds")
+    if not stale_s > 0:
+        raise ConfigError(f"stale_s must be > 0 seconds, got {stale_s}")
+    return listed
 
 
 def press_bytes(scene: SceneConfig) -> int:

@@ -71,6 +71,8 @@ class IndenterConfig:
     """Extra rotation about x, then y, then z (degrees) applied before the tip is put at z = 0."""
 
     def __post_init__(self):
+        if not isinstance(self.scale_to_size, bool):  # "no" is truthy: it scaled (s38-apikinds)
+            raise ConfigError(f"indenter.scale_to_size: must be true or false, got {self.scale_to_size!r}")
         if self.kind not in _ORIENTATIONS:
             raise ConfigError(f"unknown indenter kind {self.kind!r} (known: {', '.join(_ORIENTATIONS)})")
         for name in ("size", "relief", "length", "count"):  # as PressConfig's numbers: not a TypeError from ">"

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.capture import write_press
-from ..core.errors import PATH, ConfigError, check_kind
+from ..core.errors import PATH, ConfigError, check_flag, check_kind, check_whole
 from ..core.leds import tricolor_colors
 from ..core.press_folders import check_render_out, is_press_folder
 from .camera_effects import apply_lens
@@ -270,6 +270,10 @@ def render_press(
     check_kind(scene, SceneConfig, "scene", "a SceneConfig (load_scene(...))")
     check_kind(press, (PressConfig, type(None)), "press", "a PressConfig, or None for the undeformed dome")
     check_kind(out_folder, PATH, "out_folder", "the press folder's path (str or Path)")
+    if seed is not None:  # 1.5 failed inside Mitsuba (a SystemError), "1" rendered (s38-apikinds)
+        check_whole(seed, "seed", minimum=0)
+    check_flag(overwrite, "overwrite")
+    check_flag(return_result, "return_result")
     check_render_out(out_folder, overwrite)  # before the render: a folder of other things is never replaced
     if not overwrite and is_press_folder(out_folder):  # said before the render, not after it (as atomic_dir would)
         raise FileExistsError(errno.EEXIST, "a press folder already: overwrite=True renders it again", str(out_folder))

@@ -293,7 +293,10 @@ class SceneConfig:
         for section, changes in sections.items():
             if section not in data:
                 raise ConfigError(f"scene has no section '{section}'")
-            data[section] = data[section] | changes if isinstance(changes, dict) else changes
+            # a table over a section's fields; anything else replaces it and is checked as the field's kind ("name":
+            # a table for it was Python's "unsupported operand type(s) for |", s38-apikinds)
+            merge = isinstance(changes, dict) and isinstance(data[section], dict)
+            data[section] = data[section] | changes if merge else changes
         return from_mapping(SceneConfig, data, "scene")
 
 

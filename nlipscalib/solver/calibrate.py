@@ -37,7 +37,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
-from ..core.errors import NUMBER, CaptureError, ConfigError, check_kind
+from ..core.errors import NUMBER, CaptureError, ConfigError, check_flag, check_kind, check_whole
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import dark_everywhere_line, dark_line, frame_checks
 from ..core.tricolor_check import press_tricolor_note
@@ -170,6 +170,27 @@ def default_stride(shape: tuple[int, int]) -> int:
     return max(2, round(np.sqrt(H * W / FIT_PIXELS)))
 
 
+def _check_arguments(
+    initial: object, stride: object, led_radius: object, rounds: object, allow_contact: object, reorder_leds: object
+) -> None:
+    """An NlipsError naming the argument of :func:`calibrate_leds` of another kind or out of range, before any
+    capture is loaded.
+
+    Why: ``led_radius=-1`` was refused as "the LED disk radius" after the captures were loaded and checked,
+    ``stride=2.5`` or ``initial=[1, 2]`` failed deep inside the fit, ``allow_contact="no"`` allowed it
+    (s38-apikinds)."""
+    check_kind(led_radius, NUMBER, "led_radius", "a number of mm (0: point LEDs)")
+    if not (np.isfinite(led_radius) and led_radius >= 0):
+        raise ConfigError(f"led_radius must be a finite radius >= 0 mm (0: point LEDs), got {led_radius}")
+    if stride is not None:
+        check_whole(stride, "stride", minimum=1)
+    check_whole(rounds, "rounds", minimum=0)
+    check_flag(allow_contact, "allow_contact")
+    check_flag(reorder_leds, "reorder_leds")
+    if initial is not None and not (isinstance(initial, Sequence) and all(isinstance(led, Led) for led in initial)):
+        check_kind(initial, (), "initial", "a sequence of Led (starting values), or None (the capture's LEDs)")
+
+
 def calibrate_leds(
     presses: Press | str | os.PathLike | Sequence[Press | str | os.PathLike],
     initial: Leds | None = None,
@@ -232,8 +253,8 @@ def calibrate_leds(
     """
     one = isinstance(presses, (Press, str, os.PathLike))
     check_kind(presses, (Press, str, os.PathLike, list, tuple), "presses", PRESSES_KIND)
+    _check_arguments(initial, stride, led_radius, rounds, allow_contact, reorder_leds)
     presses = [as_press(p, "presses") for p in ([presses] if one else list(presses))]
-    check_kind(led_radius, NUMBER, "led_radius", "a number of mm (0: point LEDs)")
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
@@ -633,8 +654,6 @@ def _check_calibration_inputs(
             f"{presses[0].folder}: stride {stride} leaves {used} pixels of the gel; the LED fit needs at least "
             f"{tolerances.CALIBRATION_MIN_PIXELS}: use a smaller stride"
         )
-    if not led_radius >= 0:
-        raise ConfigError(f"the LED disk radius must be >= 0 mm, got {led_radius}")
     if coating_reflectance is not None:
         checked_reflectance(coating_reflectance)  # before any fit
 

@@ -2,16 +2,42 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from ..core.camera import Camera
-from ..core.errors import ShapeError
-from ..core.leds import Leds
+from ..core.errors import NUMBER, ShapeError, check_flag, check_kind, check_whole
+from ..core.leds import Led, Leds
 from . import threads
 from .frame_box import FrameBox
 from .options import SolverOptions
+
+
+def check_arguments(
+    images: object,
+    camera: object,
+    leds: object,
+    options: object,
+    unrefined: object,
+    led_radius: object,
+    progress: object,
+) -> None:
+    """ShapeError naming the argument of :func:`nlipscalib.solver.solve` given another kind than it takes, before
+    anything is made of it (the shapes are :func:`check_inputs`').
+
+    Why: ``solve(images, {"fx": ...}, leds)``, ``options={"max_iters": 2}``, ``unrefined=1.5`` or a list of numbers
+    for the LEDs failed in Python's AttributeError or TypeError deep inside, or took the list's length for an LED
+    count (s38-apikinds)."""
+    check_kind(images, (np.ndarray, FrameBox), "images", "an (L, H, W, 3) float array (one image per LED)")
+    check_kind(camera, Camera, "camera", "a Camera (press.camera)")
+    listed = isinstance(leds, Sequence) and all(isinstance(led, Led) for led in leds)
+    if not listed:
+        check_kind(leds, (), "leds", "a sequence of Led (press.leds, read_led_file(path).leds)")
+    check_kind(options, (SolverOptions, type(None)), "options", "a SolverOptions, or None (defaults)")
+    check_whole(unrefined, "unrefined", minimum=0)
+    check_kind(led_radius, NUMBER, "led_radius", "a number of mm (0: point LEDs)")
+    check_flag(progress, "progress")
 
 
 def check_inputs(

@@ -55,7 +55,7 @@ from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
 from .frame_box import FrameBox
 from .gauss_newton import expanded_step
-from .inputs import check_inputs
+from .inputs import check_arguments, check_inputs
 from .kernel import Backend
 from .options import SolverOptions
 from .samples import exclusions
@@ -138,6 +138,7 @@ def solve(
         last pass after its first): its normal-matrix assembler is made ahead, beside this solve
         (:func:`.coarse_to_fine.solve_coarse_to_fine`). Results are the same either way.
     """
+    check_arguments(images, camera, leds, options, unrefined, led_radius, progress)
     opts = options or SolverOptions()
     leds = tuple(leds)
     opts = dataclasses.replace(opts, smooth_deformation=smoothness_about_prior(opts, prior_depth))

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Literal
 
 from ..core import tolerances
+from ..core.config import check_field_kinds
 from ..core.errors import ConfigError
 
 Estimator = Literal["cauchy", "ls", "huber", "tukey"]
@@ -120,6 +121,7 @@ class SolverOptions:
     (benchmarks/RESULTS.md)."""
 
     def __post_init__(self):
+        check_field_kinds(self, "solver")  # a number's kind before its range: "2" failed in Python's "<" below
         self._check_finite()
         positive = (
             "robust_scale",

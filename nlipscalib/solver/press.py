@@ -29,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import inspect
 import logging
 import os
 import threading
@@ -90,7 +91,7 @@ from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
 from .point_led_error import point_led_misfit
-from .press_checks import check_modes, check_roi
+from .press_checks import check_keywords, check_modes, check_roi
 from .resolution import contact_steepness, resolution_note
 from .roi import box_mask, box_of, dent_focus
 from .sensor_fit import sensor_check_note, sensor_mismatch
@@ -125,6 +126,7 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     rescaled to its brightness (:func:`.led_checks.led_gains`, :func:`.capture.with_led_gains`), recorded as the
     report's ``led_gains`` ((L, 3) per LED and channel; None when none was rescaled).
     """
+    check_keywords(kwargs, KEYWORDS)
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
@@ -135,6 +137,7 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         "the undeformed capture (a Press or its folder's path), an (L, H, W, 3) array of indirect light, or None",
     )
     check_kind(kwargs.get("options"), (SolverOptions, type(None)), "options", "a SolverOptions, or None (defaults)")
+    _check_indirect_light(press, kwargs.get("indirect"))
     if kwargs.get("leds") is not None:
         kwargs["leds"] = _given_leds(press, kwargs["leds"])
     if not isinstance(kwargs.get("indirect"), Press):  # against an undeformed capture they may go unused
@@ -144,6 +147,20 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     # other core waited (benchmarks/RESULTS.md, s30-lastpass2; core.blas.blas_threads' why).
     with blas_threads(1):
         return _checked_solve(press, kwargs)
+
+
+def _check_indirect_light(press: Press, indirect: object) -> None:
+    """ShapeError unless an ``indirect`` array is one float image per LED image of ``press``, (L, H, W, 3).
+
+    Why: an array of another shape went through the LED checks first and failed (or ran on) deep inside them; the
+    solve's own check (:func:`.light_and_contact.split_indirect`) comes after them (s38-apikinds)."""
+    if not isinstance(indirect, np.ndarray):
+        return
+    if indirect.shape != press.led_images.shape:
+        raise ShapeError(
+            f"indirect must be the undeformed capture or {press.led_images.shape} light (one image per LED), "
+            f"got {indirect.shape}"
+        )
 
 
 def _given_leds(press: Press, leds: Any) -> tuple[Led, ...]:
@@ -972,6 +989,8 @@ def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | 
 
 # inspect.signature(solve_press) shows _solve_press's keywords (the pipeline records them with their defaults)
 solve_press.__wrapped__ = _solve_press
+KEYWORDS = (*(name for name in inspect.signature(_solve_press).parameters if name != "press"), "leds_name")
+""":func:`solve_press`'s keywords: :func:`_solve_press`'s and ``leds_name``."""
 if solve_press.__doc__ and _solve_press.__doc__:  # None under python -OO
     # help(solve_press) (a notebook's Shift-Tab) describes them too: it said "see _solve_press", a private name
     solve_press.__doc__ += "\n" + _solve_press.__doc__[_solve_press.__doc__.index("    Parameters\n") :]
