@@ -71,8 +71,8 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
         ("nlips train session/calibration --out small.pt --hidden 64,64,64 --dropout 0", "real-time net"),
     ),
     "lut": (
-        ("nlips lut session/calibration --out lut.pt", "the GelSight-style lookup table on the same samples"),
-        ("nlips infer lut.pt session && nlips eval session --method lut", "its PRESS/lut results, scored"),
+        ("nlips lut session/calibration --out lut.pt", "then: nlips infer lut.pt session"),
+        ("nlips lut session/calibration --out lut.pt --exclude press_0050", "a press kept out, to test on"),
     ),
     "export": (("nlips export model.pt", "model.onnx beside it, checked against PyTorch"),),
     "infer": (
