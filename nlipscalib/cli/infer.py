@@ -83,7 +83,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "A press's or frame's result made from the same input with the same model file and options is kept (a "
         "re-run resumes; the summary counts them); others are inferred again, and the log says what changed.",
     )
-    p.add_argument("model", help="model file (.pt) from `nlips train`")
+    p.add_argument(
+        "model",
+        help="model file (.pt) from `nlips train`, or a lookup table's from `nlips lut` (its presses' results go to "
+        "PRESS/lut, beside PRESS/nlipsnet)",
+    )
     p.add_argument(
         "inputs",
         nargs="*",
@@ -832,7 +836,7 @@ def _stills_summary(
 
 
 def _model_words(predictor: Predictor) -> str:
-    """"onnx, net 64-64-64" of a network, "lookup table 16 levels, 8x8 regions" of a table (its runtime is its own)."""
+    """ "onnx, net 64-64-64" of a network, "lookup table 16 levels, 8x8 regions" of a table (its runtime is its own)."""
     if predictor.model.table is not None:
         return predictor.model.describe()
     return f"{predictor.backend}, net {'-'.join(map(str, predictor.model.hidden))}"
