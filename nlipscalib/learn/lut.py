@@ -36,6 +36,8 @@ MAX_BINS = 256
 """Most levels per channel a table file may declare (its keys are int16, a region's table at most 256^3 bins)."""
 MAX_CELLS = 64
 """Most regions per side a table file may declare."""
+DENSE_ANSWERS = 1 << 21
+"""Most bins (regions x levels^3) whose answers :meth:`LookupTable.predict` keeps in one array (48 MB of float64)."""
 TABLE_ARRAYS = ("lo", "hi", "region", "keys", "normals")
 """The arrays of a table's file entry (:meth:`LookupTable.arrays`)."""
 
@@ -58,6 +60,9 @@ class LookupTable:
     """(H, W, 3) float32 -- the undeformed reference tri-colour frame (linear)."""
     tables: dict
     """region index -> (keys (K, 3) int bin indices, normals (K, 3) unit, scipy cKDTree over keys)."""
+    _answers: np.ndarray | None = dataclasses.field(default=None, repr=False)
+    """(cells^2, bins^3, 3) float64: every region's answer to every bin, made at the first :meth:`predict` when it
+    holds at most :data:`DENSE_ANSWERS` bins (:meth:`_dense_answers`); None: not made (yet)."""
 
     @classmethod
     def fit(
@@ -89,12 +94,31 @@ class LookupTable:
     def predict(self, pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
         """(N, 3) unit normals for samples at ``pixel`` ((N, 2) (u, v)) with colours ``rgb`` ((N, 3) linear)."""
         keys, region = self._keys(pixel, rgb), self._region(pixel)
+        if self.cells**2 * self.bins**3 <= DENSE_ANSWERS:
+            if self._answers is None:
+                self._answers = self._dense_answers()
+            return self._answers[region, (keys[:, 0] * self.bins + keys[:, 1]) * self.bins + keys[:, 2]]
         out = np.empty((len(keys), 3))
         for r in np.unique(region):
             m = region == r
-            _, normals, tree = self.tables.get(int(r), self.tables[-1])
-            out[m] = normals[tree.query(keys[m])[1]]
+            out[m] = self._nearest(int(r), keys[m])
         return out
+
+    def _nearest(self, region: int, keys: np.ndarray) -> np.ndarray:
+        """(N, 3) the normals of the filled bins of ``region`` (the pooled table's for a region without samples)
+        nearest to ``keys`` ((N, 3) bin indices)."""
+        _, normals, tree = self.tables.get(region, self.tables[-1])
+        return normals[tree.query(keys)[1]]
+
+    def _dense_answers(self) -> np.ndarray:
+        """Every region's :meth:`_nearest` answer to every bin, at once: a frame's pixels are then looked up, not
+        searched, the same normals (20,000 pixels of a 640x480 table: 1.3 ms against the k-d trees' 95 ms, on the
+        2-core VM at load ~29; benchmarks/bench_lut_predict.py). 6 MB and 1.6 s at that load for the default 16
+        levels and 8x8 regions, once (the Predictor's warm-up)."""
+        grid = np.stack(np.unravel_index(np.arange(self.bins**3), (self.bins,) * 3), -1)
+        pooled = self._nearest(-1, grid)
+        present = {int(r) for r in self.tables}
+        return np.stack([self._nearest(r, grid) if r in present else pooled for r in range(self.cells**2)])
 
     # ------------------------------------------------------------------ file entry
     def arrays(self) -> dict:

@@ -235,3 +235,18 @@ def test_nlips_lut_of_no_dataset_or_to_no_pt_file_is_one_line(tiny, tmp_path, ca
     assert _one_line(capsys).startswith(f"nlips lut: error: {tmp_path / 'nothing'}")
     assert main(["lut", str(root / "calib"), "--out", str(tmp_path / "t.npz")]) == 2
     assert "must end in .pt" in _one_line(capsys)
+
+
+def test_a_tables_file_is_told_from_a_networks_without_unpickling_it(tmp_path):
+    """`nlips infer` decides where the results go (PRESS/lut or PRESS/nlipsnet) before the model loads."""
+    import torch
+
+    from nlipscalib.learn.model import MODEL_FORMAT, TABLE_FORMAT, model_method
+
+    for fmt, method in ((TABLE_FORMAT, "lut"), (MODEL_FORMAT, "nlipsnet")):
+        torch.save({"format": fmt, "format_version": 1, "info": {"dataset": TABLE_FORMAT}}, tmp_path / "m.pt")
+        assert model_method(tmp_path / "m.pt") == method
+    torch.save({"info": {"format": TABLE_FORMAT}, "format": MODEL_FORMAT}, tmp_path / "m.pt")  # not the first key
+    assert model_method(tmp_path / "m.pt") == "nlipsnet"
+    (tmp_path / "junk.pt").write_bytes(b"PK\x03\x04 not a zip")
+    assert model_method(tmp_path / "junk.pt") == model_method(tmp_path / "none.pt") == "nlipsnet"  # its load says why
