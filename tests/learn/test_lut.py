@@ -250,3 +250,18 @@ def test_a_tables_file_is_told_from_a_networks_without_unpickling_it(tmp_path):
     assert model_method(tmp_path / "m.pt") == "nlipsnet"
     (tmp_path / "junk.pt").write_bytes(b"PK\x03\x04 not a zip")
     assert model_method(tmp_path / "junk.pt") == model_method(tmp_path / "none.pt") == "nlipsnet"  # its load says why
+
+
+def test_the_kept_answers_are_the_searched_ones(monkeypatch):
+    """predict looks each bin's answer up in one array made once; the k-d tree search it replaced (kept for tables of
+    more than DENSE_ANSWERS bins) gives the same normals, regions without samples taking the pooled table's."""
+    from nlipscalib.learn import lut
+
+    pixel, rgb, normal, reference = _known_mapping(30_000, seed=6)
+    keep = pixel[:, 0] >= 8  # the left quarter's regions get no sample: the pooled table answers there
+    table = LookupTable.fit(pixel[keep], rgb[keep], normal[keep], reference, cells=4, bins=12)
+    test_pixel, test_rgb, _, _ = _known_mapping(5_000, seed=7)
+    kept = table.predict(test_pixel, test_rgb)
+    assert table._answers is not None
+    monkeypatch.setattr(lut, "DENSE_ANSWERS", 0)
+    np.testing.assert_array_equal(table.predict(test_pixel, test_rgb), kept)
