@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import CaptureError, ShapeError
-from ..core.tolerances import NORMAL_EPS
+from ..core.tolerances import NORMAL_EPS, UNIT_NORMAL_TOL
 
 if TYPE_CHECKING:  # named in hints only
     from .dataset import CalibrationDataset
@@ -164,7 +164,7 @@ class LookupTable:
             raise CaptureError(f"{where}: 'keys' must be bin indices in [0, {bins}) (and the table not empty)")
         if region.min() < -1 or region.max() >= cells * cells or not np.any(region == -1):
             raise CaptureError(f"{where}: 'region' must index the {cells}x{cells} regions, with -1 (pooled) among them")
-        if not np.all(np.abs(np.linalg.norm(normals, axis=-1) - 1) < 1e-3):
+        if not np.all(np.abs(np.linalg.norm(normals, axis=-1) - 1) < UNIT_NORMAL_TOL):
             raise CaptureError(f"{where}: 'normals' must be finite unit vectors")
         lut = cls(lo, hi, bins, cells, reference.shape[:2], reference.astype(np.float32), {})
         keys, normals = keys.astype(np.int64), normals.astype(np.float64)
