@@ -53,6 +53,7 @@ SUBCOMMAND_MODULES = (
     "live",
     "calibration",
     "train",
+    "lut",
     "export",
     "infer",
     "verify",

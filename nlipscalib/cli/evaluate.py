@@ -1,14 +1,15 @@
-"""``nlips eval PATH``: AAE, MabsE and depth RMSE of reconstructions (NLiPs or NLiPsNet) against ground truth.
+"""``nlips eval PATH``: AAE, MabsE and depth RMSE of reconstructions (NLiPs, NLiPsNet or the lookup table)
+against ground truth.
 
-PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet:
+PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet, PRESS/lut:
 the method is then taken from the folder's name). A result written elsewhere (`nlips solve PRESS --out
 DIR`) is scored with `nlips eval PRESS --result DIR`, which refuses a result made from another capture than PRESS
 (`--other-capture` scores it anyway). Several presses are scored together: one row each, then their mean (each
 press counts once) and the pooled figures (over all their scored pixels). Results of image frames (`nlips infer
 MODEL FRAMES --out DIR`) carry no ground truth: each is scored against the press its frame shows, one at a time
 (`nlips eval PRESS --result DIR/FRAME`); infer the press folders instead to score them together. A stream's saved
-frames (`nlips live --out DIR`: DIR/frame_NNNNNN.npz) record no input and are not scored. Both methods
-write the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
+frames (`nlips live --out DIR`: DIR/frame_NNNNNN.npz) record no input and are not scored. Every method
+writes the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
 by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table.
@@ -32,19 +33,26 @@ if TYPE_CHECKING:  # named in hints only: imported when a result is scored
     from ..pipeline import SolveSettings
 
 log = logging.getLogger(__name__)
-MAKES = {"nlips": "`nlips solve {path}`", "nlipsnet": "`nlips infer MODEL.pt {path}`"}
+MAKES = {
+    "nlips": "`nlips solve {path}`",
+    "nlipsnet": "`nlips infer MODEL.pt {path}`",
+    "lut": "`nlips infer TABLE.pt {path}` with a lookup table from `nlips lut`",
+}
 """The command that writes each method's result, for the "no result yet" errors (``{path}``: the folder given)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "eval", help="score reconstructions (NLiPs or NLiPsNet) against the ground truth", description=__doc__
+        "eval",
+        help="score reconstructions (NLiPs, NLiPsNet or the lookup table) against the ground truth",
+        description=__doc__,
     )
     p.add_argument("path", help="press folder, folder of presses, or a reconstruction folder (PRESS/nlips)")
     p.add_argument(
         "--method",
-        choices=("nlips", "nlipsnet"),
-        help="which reconstruction to score: PRESS/nlips (default) or PRESS/nlipsnet",
+        choices=("nlips", "nlipsnet", "lut"),
+        help="which reconstruction to score: PRESS/nlips (default), PRESS/nlipsnet or PRESS/lut (`nlips infer` of a "
+        "lookup table from `nlips lut`)",
     )
     p.add_argument(
         "--result",
@@ -473,8 +481,8 @@ def _load(folder: Path, method: str, single: bool, out: str | Path | None = None
 
 
 def _infer_command(folder: Path, out: Path) -> str:
-    """The `nlips infer` that re-makes the NLiPsNet result ``out`` of the press ``folder`` (its model when the
-    report still names it)."""
+    """The `nlips infer` that re-makes the NLiPsNet or lookup-table result ``out`` of the press ``folder`` (its model
+    when the report still names it)."""
     from ..core.errors import CaptureError
     from ..core.reconstruction import read_report, reconstruction_dir
 
@@ -483,7 +491,8 @@ def _infer_command(folder: Path, out: Path) -> str:
     except CaptureError:
         model = None
     model = model if isinstance(model, str) and model else "MODEL.pt"
-    elsewhere = out != reconstruction_dir(folder, method="nlipsnet") and out.parent.name == folder.name
+    method = out.name if out.name in ("nlipsnet", "lut") else "nlipsnet"
+    elsewhere = out != reconstruction_dir(folder, method=method) and out.parent.name == folder.name
     command = f"`nlips infer {shell_word(model)} {shell_word(folder)}"
     return command + (f" --out {shell_word(out.parent.parent)}`" if elsewhere else "`")
 

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.atomic import check_writable
-    from ..core.errors import ConfigError
+    from ..core.errors import CaptureError, ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
     from ..learn.publish import model_files_held
@@ -54,6 +54,11 @@ def run(args: argparse.Namespace) -> int:
     # its own (learn.publish), or an export of the model it replaced would land beside the new one
     with model_files_held(args.model) if beside else nullcontext():
         model = load_model(args.model)
+        if model.table is not None:  # `nlips lut`'s: NumPy and SciPy run it, there is no network to export
+            raise CaptureError(
+                f"{args.model}: a lookup table (`nlips lut`), not a network: nothing to export; `nlips infer` runs it "
+                "as it is"
+            )
         angles = []  # checked on the written file before it takes its name: a failed or interrupted check publishes
         # none
         path = export_onnx(model, out, check=lambda tmp: angles.append(parity_deg(model, tmp)))

@@ -70,6 +70,10 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
         ("nlips train session/calibration --out model.pt", "the paper's net"),
         ("nlips train session/calibration --out small.pt --hidden 64,64,64 --dropout 0", "real-time net"),
     ),
+    "lut": (
+        ("nlips lut session/calibration --out lut.pt", "then: nlips infer lut.pt session"),
+        ("nlips lut session/calibration --out lut.pt --exclude press_0050", "a press kept out, to test on"),
+    ),
     "export": (("nlips export model.pt", "model.onnx beside it, checked against PyTorch"),),
     "infer": (
         ("nlips infer model.pt session", "every press of a folder: PRESS/nlipsnet"),

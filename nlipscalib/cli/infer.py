@@ -90,7 +90,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "A press's or frame's result made from the same input with the same model file and options is kept (a "
         "re-run resumes; the summary counts them); others are inferred again, and the log says what changed.",
     )
-    p.add_argument("model", help="model file (.pt) from `nlips train`")
+    p.add_argument(
+        "model",
+        help="model file (.pt) from `nlips train`, or a lookup table's from `nlips lut` (its presses' results go to "
+        "PRESS/lut, beside PRESS/nlipsnet)",
+    )
     p.add_argument(
         "inputs",
         nargs="*",
@@ -243,6 +247,10 @@ def run(args: argparse.Namespace) -> int:
             _check_presses_unchanged([Path(args.reference)])
     if stream_input is not None:
         return _run_stream(args, stream_input)
+    from ..learn.model import model_method
+
+    # PRESS/nlipsnet for a network, PRESS/lut for a lookup table (`nlips lut`): both results of a press side by side
+    args.result_dir = model_method(args.model)
     return _run_stills(args)
 
 
@@ -593,7 +601,6 @@ class _StageTimes:
         mean = self.means()
         if not mean or not stats.frames:
             return "no frames"
-        net = "-".join(map(str, predictor.model.hidden))
         where = f"{predictor.backend}{'' if predictor.device is None else f' on {predictor.device}'}"
         steps = {k: v for k, v in mean.items() if k != "total"}
         call = stats.predict_s / stats.frames
@@ -602,8 +609,8 @@ class _StageTimes:
         times = ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in steps.items())
         rate = f"{1 / per_frame:.1f}" if per_frame > 0 else "inf"
         return (
-            f"NLiPsNet {net} ({where}), mean per frame: {times} = {1e3 * per_frame:.1f} ms = {rate} frames/s for the "
-            f"predictor alone, without read and output (normals{'' if no_depth else ' + depth'}); "
+            f"{predictor.model.describe()} ({where}), mean per frame: {times} = {1e3 * per_frame:.1f} ms = {rate} "
+            f"frames/s for the predictor alone, without read and output (normals{'' if no_depth else ' + depth'}); "
             f"process CPU {1e3 * cpu_s / stats.frames:.1f} ms/frame"
         )
 
@@ -669,7 +676,7 @@ def _write_stream_report(
         "input": name,
         "model": str(predictor.model.path.resolve()),
         "backend": predictor.backend,
-        "hidden": list(predictor.model.hidden),
+        "hidden": list(predictor.model.hidden),  # [] for a lookup table
         "frames": stats.frames,
         "dropped": stats.dropped,  # read while the LED board had reset (device.live_leds.ResetWatch)
         "wall_s": stats.seconds,
@@ -717,6 +724,8 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
         return 0
     _check_writable(args, saved, looked)  # a read-only --out: one line now, not once the model loaded
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    if predictor.model.method != getattr(args, "result_dir", predictor.model.method):
+        raise CaptureError(f"{args.model}: replaced by another kind of model while it was read; run again")
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         # said once the model loaded: before, a missing or damaged model's one error line came after it
         log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
@@ -930,10 +939,17 @@ def _stills_summary(
     med = float(np.median(seconds))
     over = f" over the {n} inferred" if kept else ""
     return (
-        f"{counts}, {predictor.backend}, net {'-'.join(map(str, predictor.model.hidden))}: "
+        f"{counts}, {_model_words(predictor)}: "
         f"median {med * 1000:.1f} ms/frame = {1 / med:.1f} frames/s{over} "
         f"(normals{'' if args.no_depth else ' + depth'}); whole command {wall_s:.1f} s"
     )
+
+
+def _model_words(predictor: Predictor) -> str:
+    """ "onnx, net 64-64-64" of a network, "lookup table 16 levels, 8x8 regions" of a table (its runtime is its own)."""
+    if predictor.model.table is not None:
+        return predictor.model.describe()
+    return f"{predictor.backend}, net {'-'.join(map(str, predictor.model.hidden))}"
 
 
 def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
@@ -1079,7 +1095,8 @@ def _destination(args: argparse.Namespace, name: str, press_folder: Path | None)
     from ..learn.infer import RESULT_DIR
 
     if press_folder is not None:
-        return Path(args.out) / name / RESULT_DIR if args.out else reconstruction_dir(press_folder, method=RESULT_DIR)
+        method = getattr(args, "result_dir", None) or RESULT_DIR  # a lookup table's: lut (:func:`run`)
+        return Path(args.out) / name / method if args.out else reconstruction_dir(press_folder, method=method)
     return Path(args.out) / name if args.out else None
 
 
@@ -1111,7 +1128,7 @@ def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) 
             )
     for folder, (source, frame) in seen.items():
         _check_not_nested(folder, frame, source)
-        check_replaceable(folder, method="nlipsnet")
+        check_replaceable(folder, method=getattr(args, "result_dir", None) or "nlipsnet")
     return [(folder, not frame) for folder, (_, frame) in seen.items()]
 
 
@@ -1120,16 +1137,16 @@ def _check_not_nested(folder: Path, frame: bool, source: Path) -> None:
     inside a result (a press's OUT/X/nlipsnet in a frame's OUT/X), or a ``frame``'s folder holding a press's."""
     from ..core.errors import ConfigError
     from ..core.reconstruction import is_reconstruction_dir
-    from ..learn.infer import RESULT_DIR
 
     if is_reconstruction_dir(folder.parent):
         raise ConfigError(
             f"{source}: its result {folder} would lie inside the result folder {folder.parent}: choose another "
             "--out (or move that result away)"
         )
-    if frame and is_reconstruction_dir(folder / RESULT_DIR):
+    inner = next((folder / m for m in ("nlipsnet", "lut") if is_reconstruction_dir(folder / m)), None)
+    if frame and inner is not None:
         raise ConfigError(
-            f"{source}: its result would replace {folder}, which holds a press's result ({folder / RESULT_DIR}): "
+            f"{source}: its result would replace {folder}, which holds a press's result ({inner}): "
             "choose another --out (or move that result away)"
         )
 

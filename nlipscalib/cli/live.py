@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "opencv-python in place of the opencv-python-headless installed with nlipscalib), and/or saved with --out. "
         "Warns when the frames stop looking like the model's calibration.",
     )
-    p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
+    p.add_argument("--model", help="NLiPsNet model file from `nlips train` (or a lookup table from `nlips lut`)")
     p.add_argument(
         "--predictor", help=f"other predictor, module:function: a {PREDICTOR_USAGE} (nlipscalib.device.live)"
     )

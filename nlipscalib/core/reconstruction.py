@@ -38,11 +38,12 @@ FORMAT_VERSION = 2
 READ_VERSIONS = (1, FORMAT_VERSION)
 """The versions :func:`load_reconstruction` reads (version 1 files are pasted as they are: full-frame maps)."""
 RESULT_DIR = "nlips"
-METHODS = ("nlips", "nlipsnet")
-"""Reconstruction methods; each writes PRESS/<method>/ in this format."""
-METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet"}
+METHODS = ("nlips", "nlipsnet", "lut")
+"""Reconstruction methods; each writes PRESS/<method>/ in this format (``lut``: `nlips infer` of a lookup table's
+model file, ``nlips lut``)."""
+METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet", "lut": "lookup-table"}
 """Each method as a user reads it."""
-MADE_BY = {"nlips": "nlips solve", "nlipsnet": "nlips infer"}
+MADE_BY = {"nlips": "nlips solve", "nlipsnet": "nlips infer", "lut": "nlips infer"}
 """The command that makes each method's results."""
 RESULT_FILE = "result.npz"
 REPORT_FILE = "report.json"
@@ -179,7 +180,7 @@ def replace_problem(folder: str | Path, method: str | None = None) -> str | None
         return f"{folder}: exists and holds other things than a reconstruction ({listed})"
     other = _recorded_method(folder / REPORT_FILE) if method is not None else None
     if other is not None and other != method:
-        made = f"an {METHOD_NAMES[other]} result (`{MADE_BY[other]}`)"
+        made = f"{'a' if other == 'lut' else 'an'} {METHOD_NAMES[other]} result (`{MADE_BY[other]}`)"
         return f"{folder}: holds {made}, which this {METHOD_NAMES[method]} result would replace"
     return None
 

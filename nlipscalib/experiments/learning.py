@@ -1,6 +1,7 @@
 """NLiPsNet in the experiments: the press tasks' samples as one calibration dataset, trained models, scores.
 
-Wiring to nlipscalib.learn (dataset format, training, evaluation, lookup-table baseline); runs in the
+Wiring to nlipscalib.learn (dataset format, training, evaluation; the lookup-table baseline is
+``learn.lut.fit_lookup_table``, `nlips lut`'s fit); runs in the
 process that runs the experiment, after the press tasks. Every model is keyed by its training options
 and the identities of its presses' samples: ``learned/<key>.pt`` (+ ``.json`` when finished) is
 reused by a later run and by other experiments sharing the work folder; an interrupted training
@@ -25,7 +26,6 @@ from .tasks import Task, dataset_entry, digest, reference_folder, samples_proble
 
 if TYPE_CHECKING:  # named in hints only: each function imports the learn/ modules it uses
     from ..learn.dataset import CalibrationDataset
-    from ..learn.lut import LookupTable
     from ..learn.train import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -168,14 +168,6 @@ def _train(
     }
     write_json(record, done)
     return done
-
-
-def fit_lookup_table(data: CalibrationDataset, names: list[str]) -> LookupTable:
-    """The GelSight-style lookup-table baseline fitted on the samples of ``names`` (NLiPs labels)."""
-    from ..learn.lut import LookupTable
-
-    s = data.arrays(names)
-    return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.filtered_reference())
 
 
 def undeformed_predictor(data: CalibrationDataset) -> Predictor:

@@ -63,6 +63,7 @@ class PressCount(Q2):
         return []
 
     def learn(self, cfg: PressCountConfig, tasks: list[Task], out: Path, progress: bool = True) -> dict:
+        from ..learn.lut import fit_lookup_table
         from . import learning
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
@@ -75,7 +76,7 @@ class PressCount(Q2):
         for k in counts:
             subset = names["train"][:k]
             model = learning.train_model(data, subset, stamps, cfg.net, out, progress)
-            lut = learning.fit_lookup_table(data, subset)
+            lut = fit_lookup_table(data, subset)  # `nlips lut`'s fit
             predictors = {METHODS[0]: learning.net_predictor(out, model, cfg.net.threads), METHODS[1]: lut.predict}
             for r in learning.score(data, predictors, tests):
                 if r["method"] in METHODS:

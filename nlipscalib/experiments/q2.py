@@ -195,6 +195,7 @@ class Q2(Experiment):
 
     # ------------------------------------------------------------------ learning
     def learn(self, cfg: Q2Config, tasks: list[Task], out: Path, progress: bool = True) -> dict:
+        from ..learn.lut import fit_lookup_table
         from . import learning
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
@@ -207,7 +208,7 @@ class Q2(Experiment):
             upper = dataclasses.replace(cfg.net, labels="true")
             models["upper"] = learning.train_model(data, names["train"], stamps, upper, out, progress)
         predictors = {METHODS[k]: learning.net_predictor(out, m, cfg.net.threads) for k, m in models.items()}
-        lut = learning.fit_lookup_table(data, names["train"])
+        lut = fit_lookup_table(data, names["train"])  # `nlips lut`'s fit (NLiPs labels, default size)
         predictors[METHODS["lut"]] = lut.predict
         predictors[METHODS["none"]] = learning.undeformed_predictor(data)
         by_indenter = _by_indenter(data, tests)

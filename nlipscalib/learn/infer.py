@@ -128,6 +128,11 @@ class Predictor:
         self.device = predictor_device(device, backend, full_frame)
         self.full_frame = full_frame
         self.model = load_model(model_path)
+        if self.model.table is not None and self.device is not None:
+            raise ConfigError(
+                f"{model_path}: a lookup table runs on the CPU, on the changed pixels (not on a GPU nor the whole "
+                "frame): leave the device at cpu, without the whole frame"
+            )
         ref = self.model.reference
         self.camera = Camera.from_dict(self.model.sensor["camera"])
         self.valid = ref["valid"].astype(bool)
@@ -213,6 +218,9 @@ class Predictor:
         self.backend = backend = resolved_backend(self.model.path, backend, on_cpu=self.device is None)
         if self.device is not None:  # a GPU or the whole frame: PyTorch, run by .fullframe
             return None
+        if backend == "lut":  # a lookup table (learn.lut): NumPy and SciPy, no network runtime
+            table = self.model.table
+            return lambda x: table.predict(x[:, :2], x[:, 2:])
         if backend in ("onnx", "onnx-int8"):
             from .onnx_export import OnnxNet
 
@@ -442,9 +450,19 @@ def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) 
 
     PyTorch off the CPU path (``on_cpu`` False: a GPU or the whole frame, run by :mod:`.fullframe`); "auto" is
     onnxruntime ("onnx") when the model was exported beside it (MODEL.onnx: ``nlips train`` writes one), else
-    PyTorch; any other as given. Found from the file names alone, so ``nlips infer`` can tell that a re-run's
+    PyTorch; any other as given; "lut" for a lookup table's file (``learn.model.model_method``). Found from the file
+    names and a table's first pickled strings alone, so ``nlips infer`` can tell that a re-run's
     results are all kept without loading the model or importing either runtime.
     """
+    from .model import model_method
+
+    if model_method(model_path) == "lut":  # a lookup table runs on its own; what the others run is a network
+        if backend != "auto":
+            raise ConfigError(
+                f"{model_path}: a lookup table (`nlips lut`), run by NumPy and SciPy: backend {backend!r} runs an "
+                "NLiPsNet network; leave the backend at auto"
+            )
+        return "lut"
     if not on_cpu:
         return "torch"
     if backend == "auto":
@@ -595,12 +613,14 @@ def to_reconstruction(
         mask=valid.copy(),
         reconstructed=valid.copy(),
         report={
-            "method": "nlipsnet",
+            "method": predictor.model.method,
             "model": str(predictor.model.path.resolve()),  # absolute: a later command may run elsewhere
             "backend": predictor.backend,
             "device": str(predictor.device or "cpu"),
             "full_frame": predictor.full_frame,
-            "hidden": list(predictor.model.hidden),
+        }
+        | _model_shape(predictor.model)
+        | {
             "labels": predictor.model.info.get("labels"),
             "source": source,
             "changed_pixels": int(frame.changed.sum()),
@@ -608,6 +628,14 @@ def to_reconstruction(
         }
         | ({"provenance": dict(provenance)} if provenance else {}),
     )
+
+
+def _model_shape(model: LoadedModel) -> dict:
+    """A result's record of what the model is: an NLiPsNet's ``hidden`` layer widths, a lookup table's ``table``
+    (``bins`` levels per channel, ``cells`` regions per side)."""
+    if model.table is not None:
+        return {"table": {"bins": model.table.bins, "cells": model.table.cells}}
+    return {"hidden": list(model.hidden)}
 
 
 def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:

@@ -38,8 +38,13 @@ from ..core.errors import CaptureError, require
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
 
+    from .lut import LookupTable
+
 MODEL_FORMAT = "nlipscalib.nlipsnet"
 MODEL_VERSION = 1
+TABLE_FORMAT = "nlipscalib.lut"
+"""The lookup-table baseline's model file (:mod:`.lut`, ``nlips lut``): this file's container, a table for weights."""
+TABLE_VERSION = 1
 PAPER_HIDDEN = (256, 256, 128)
 """Hidden layer widths of the paper's NLiPsNet."""
 PAPER_DROPOUT = 0.2
@@ -277,15 +282,27 @@ def save_model(
 class LoadedModel:
     """A model file, validated: ``net`` (eval mode), ``sensor``, ``reference`` arrays, ``info``; ``digest``: that
     of the file's bytes these came from (``learn.onnx_export.bytes_digest``; by default, of the file at ``path``
-    now), which an ONNX export records and inference checks."""
+    now), which an ONNX export records and inference checks. A lookup table's file (:data:`TABLE_FORMAT`) has
+    ``table`` (:class:`.lut.LookupTable`) and no ``net`` (None)."""
 
-    def __init__(self, path: str | Path, net: torch.nn.Module, payload: dict, digest: str | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        net: torch.nn.Module | None,
+        payload: dict,
+        digest: str | None = None,
+        table: LookupTable | None = None,
+    ):
         from .onnx_export import file_digest
 
         self.path = Path(path)
         self.digest = digest if digest is not None else file_digest(self.path)
         self.net = net
-        self.hidden = tuple(payload["hidden"])
+        self.table = table
+        """:class:`.lut.LookupTable` of a lookup table's file, else None."""
+        self.method = "nlipsnet" if table is None else "lut"
+        """The reconstruction method its results are (``core.reconstruction.METHODS``): their folder's name."""
+        self.hidden = tuple(payload.get("hidden", ()))  # a table has no layers
         self.sensor: dict = payload["sensor"]
         self.reference: dict = {k: v.numpy() for k, v in payload["reference"].items()}
         self.info: dict = payload["info"]
@@ -302,19 +319,27 @@ class LoadedModel:
         cam = self.sensor["camera"]
         return (cam["height"], cam["width"])
 
+    def describe(self) -> str:
+        """What it is, for the summary lines: "NLiPsNet 64-64-64", "lookup table 16 levels, 8x8 regions"."""
+        if self.table is not None:
+            return f"lookup table {self.table.bins} levels, {self.table.cells}x{self.table.cells} regions"
+        return f"NLiPsNet {'-'.join(map(str, self.hidden))}"
+
 
 def load_model(path: str | Path) -> LoadedModel:
-    """Load and validate a model file; every problem is one CaptureError naming the file."""
-    from ..core.errors import ConfigError
-    from ..core.sensor_record import check_sensor_record
-    from .prefilter import check_colour_sigma, check_sigma
-
-    torch = _torch()
+    """Load and validate a model file (an NLiPsNet's, or a lookup table's: :data:`TABLE_FORMAT`); every problem is
+    one CaptureError naming the file."""
+    _torch()
     path = Path(path)
     _check_model_path(path)
     payload, data = _read_torch_bytes(path, "an NLiPsNet model file")
+    if isinstance(payload, dict) and payload.get("format") == TABLE_FORMAT:
+        return _load_table(path, payload, data)
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
-        raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
+        raise CaptureError(
+            f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r}, or {TABLE_FORMAT!r} for a lookup "
+            "table)"
+        )
     if payload.get("format_version") != MODEL_VERSION:
         from ..core.formatfile import version_problem
 
@@ -323,25 +348,12 @@ def load_model(path: str | Path) -> LoadedModel:
     for key in ("hidden", "dropout", "state_dict", "sensor", "reference", "info"):
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")
-    # a hand-edited or foreign file: each field named here, not as a TypeError deep inside inference
-    remedy = "train it again (`nlips train`) on a calibration dataset that records it"
-    cam = check_sensor_record(payload["sensor"], path, remedy)["camera"]
+    cam = _check_container(payload, path, "train it again (`nlips train`) on a calibration dataset that records it")
     hidden, dropout = payload["hidden"], payload["dropout"]
     if not isinstance(hidden, (list, tuple)) or not hidden or any(type(h) is not int or h < 1 for h in hidden):
         raise CaptureError(f"{path}: 'hidden' must list positive layer widths, got {hidden!r}")
     if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) or not 0 <= dropout < 1:
         raise CaptureError(f"{path}: 'dropout' must be in [0, 1), got {dropout!r}")
-    reference = payload["reference"]
-    if not isinstance(reference, dict) or not all(isinstance(v, torch.Tensor) for v in reference.values()):
-        raise CaptureError(f"{path}: 'reference' must map names to arrays")
-    _check_reference(reference, (cam["height"], cam["width"]), path)
-    if not isinstance(payload["info"], dict):
-        raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
-    try:  # a bad sigma is named here, not by the prefilter at inference ("prefilter sigma must be ...")
-        check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
-        check_colour_sigma(payload.get("smoothing_colour", 0.0), "'smoothing_colour'")
-    except ConfigError as exc:
-        raise CaptureError(f"{path}: {exc}") from None
     if payload.get("colour_input", "linear") not in COLOUR_INPUTS:
         raise CaptureError(
             f"{path}: 'colour_input' must be one of {', '.join(COLOUR_INPUTS)}, got {payload['colour_input']!r}"
@@ -359,6 +371,120 @@ def load_model(path: str | Path) -> LoadedModel:
     # the digest of the bytes read, not of the file at the path later: a model published there meanwhile (`nlips
     # train --out`) would otherwise lend its digest to this one's export, which inference then takes as current
     return LoadedModel(path, net, payload, digest=bytes_digest(data))
+
+
+def _check_container(payload: dict, path: Path, remedy: str) -> dict:
+    """The camera of a model file's ``sensor`` once what an NLiPsNet and a lookup table's file share is checked (the
+    sensor description, the five reference arrays, ``info``, the prefilter's sigmas); CaptureError naming the file
+    otherwise (``remedy``: what makes one that records the sensor). A hand-edited or foreign file: each field named
+    here, not as a TypeError deep inside inference."""
+    from ..core.errors import ConfigError
+    from ..core.sensor_record import check_sensor_record
+    from .prefilter import check_colour_sigma, check_sigma
+
+    torch = _torch()
+    cam = check_sensor_record(payload["sensor"], path, remedy)["camera"]
+    reference = payload["reference"]
+    if not isinstance(reference, dict) or not all(isinstance(v, torch.Tensor) for v in reference.values()):
+        raise CaptureError(f"{path}: 'reference' must map names to arrays")
+    _check_reference(reference, (cam["height"], cam["width"]), path)
+    if not isinstance(payload["info"], dict):
+        raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
+    try:  # a bad sigma is named here, not by the prefilter at inference ("prefilter sigma must be ...")
+        check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
+        check_colour_sigma(payload.get("smoothing_colour", 0.0), "'smoothing_colour'")
+    except ConfigError as exc:
+        raise CaptureError(f"{path}: {exc}") from None
+    return cam
+
+
+def save_table(
+    path: str | Path,
+    table: LookupTable,
+    *,
+    sensor: dict,
+    reference: dict,
+    info: dict,
+    smoothing_px: float = 0.0,
+    smoothing_colour: float = 0.0,
+) -> Path:
+    """Write a lookup table's model file atomically (:data:`TABLE_FORMAT`; docs/formats.md): ``table``
+    (:class:`.lut.LookupTable`) as :meth:`~.lut.LookupTable.arrays`, the sensor and reference arrays it was
+    calibrated for and the samples' prefilter, as :func:`save_model` writes them."""
+    import io
+
+    from ..core.atomic import write_bytes
+
+    torch = _torch()
+    entry = {k: torch.from_numpy(v) if isinstance(v, np.ndarray) else v for k, v in table.arrays().items()}
+    payload = {
+        "format": TABLE_FORMAT,
+        "format_version": TABLE_VERSION,
+        "table": entry,
+        "sensor": sensor,
+        "reference": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in reference.items()},
+        "info": info,
+        "smoothing_px": float(smoothing_px),
+    }
+    if smoothing_colour:
+        payload["smoothing_colour"] = float(smoothing_colour)
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return write_bytes(path, buf.getvalue())
+
+
+def _load_table(path: Path, payload: dict, data: bytes) -> LoadedModel:
+    """:func:`load_model` of a lookup table's file (:data:`TABLE_FORMAT`), checked alike."""
+    from .lut import TABLE_ARRAYS, LookupTable
+    from .onnx_export import bytes_digest
+    from .prefilter import Prefilter
+
+    torch = _torch()
+    if payload.get("format_version") != TABLE_VERSION:
+        from ..core.formatfile import version_problem
+
+        remake = "fit it again (`nlips lut`) on its calibration dataset"
+        raise CaptureError(version_problem(path, payload, (TABLE_VERSION,), remake))
+    for key in ("table", "sensor", "reference", "info"):
+        if key not in payload:
+            raise CaptureError(f"{path}: lookup-table file lacks '{key}'")
+    _check_container(payload, path, "fit it again (`nlips lut`) on a calibration dataset that records it")
+    entry = payload["table"]
+    if not isinstance(entry, dict) or not all(isinstance(entry.get(k), torch.Tensor) for k in TABLE_ARRAYS):
+        raise CaptureError(f"{path}: 'table' must hold the arrays {', '.join(TABLE_ARRAYS)}")
+    arrays = {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in entry.items()}
+    reference = {k: v.numpy() for k, v in payload["reference"].items()}
+    valid = reference["valid"].astype(bool)
+    smoothing_px, smoothing_colour = float(payload.get("smoothing_px", 0.0)), float(payload.get("smoothing_colour", 0))
+    # the colours are binned as differences from the reference filtered as the samples were (CalibrationDataset.
+    # filtered_reference): made again from the reference the file carries, not stored twice
+    filtered = Prefilter(valid, smoothing_px, smoothing_colour)(reference["tricolor"].astype(np.float32))
+    table = LookupTable.from_arrays(arrays, filtered, path)
+    return LoadedModel(path, None, payload, digest=bytes_digest(data), table=table)
+
+
+def model_method(path: str | Path) -> str:
+    """ "lut" when ``path`` is a lookup table's model file, else "nlipsnet" (an NLiPsNet's, or no readable model
+    file: its load names the problem), told from the file's first pickled strings without unpickling it or
+    importing torch (``pickletools`` reads the opcodes alone), so ``nlips infer`` knows where the results go and
+    which runtime it records before the model loads."""
+    import pickletools
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            name = next((n for n in archive.namelist() if n.endswith("/data.pkl")), None)
+            if name is None or archive.getinfo(name).file_size > 1 << 20:
+                return "nlipsnet"
+            strings = []
+            for op, arg, _ in pickletools.genops(archive.read(name)):
+                if isinstance(arg, str) and "UNICODE" in op.name:
+                    strings.append(arg)
+                    if len(strings) == 2:  # the payload's first key, "format", and its value
+                        break
+    except (OSError, zipfile.BadZipFile, ValueError, EOFError, KeyError):
+        return "nlipsnet"
+    return "lut" if strings == ["format", TABLE_FORMAT] else "nlipsnet"
 
 
 def _check_layer_shapes(hidden: Sequence[int], state: object, path: Path) -> None:

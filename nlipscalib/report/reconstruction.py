@@ -32,7 +32,7 @@ FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
 RESIDUAL_UNIT = "linear intensity"
 """Unit of the residual maps: linear image units, the sensor's full range = 1 (``Press.linear``)."""
-METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet"}
+METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet", "lut": "lookup table"}
 """How the summary's title names the method of ``report.json``'s ``method``."""
 NORMALS_PNG, DEPTH_PNG, SUMMARY_PNG = "normals.png", "depth.png", "summary.png"
 """The normal and depth maps (written at every level but "none") and the "full" level's summary sheet."""
