@@ -105,6 +105,9 @@ def _options_changed(recorded: object, cfg: TrainConfig) -> str:
     if not isinstance(recorded, dict):
         return ""
     old, now = ({**OMITTED_OPTIONS, **options} for options in (recorded, _trajectory_options(cfg)))
+    if "linear" in (old["colour_input"], now["colour_input"]):  # linear colours divide by no reference: not a change
+        for options in (old, now):
+            options.pop("reference_smoothing_px", None)
     names = [k for k in now if k in old] + [k for k in now if k not in old]  # this run's order; one side's last
     return ", ".join(f"{k} {old.get(k)!r} -> {now[k]!r}" for k in names if old.get(k) != now[k])
 
