@@ -85,7 +85,9 @@ outweigh what the presses show."""
 DEFAULT_REFERENCE_SMOOTHING_PX = 3.0
 """:attr:`TrainConfig.reference_smoothing_px` by default: 3 px (docs/experiments/RESULTS.md, s38-unseen3). On Q2 medium
 at three training seeds, against the samples' 1 px prefilter: seen 0.89 / 0.95 / 0.93 -> 0.79 / 0.84 / 0.77 deg vs
-truth, unseen 2.93 / 2.91 / 2.97 -> 2.88 / 2.87 / 2.87 (vs the labels 2.12 / 2.15 / 2.17 -> 2.04 / 2.03 / 2.09)."""
+truth, unseen 2.93 / 2.91 / 2.97 -> 2.88 / 2.87 / 2.87 (vs the labels 2.12 / 2.15 / 2.17 -> 2.04 / 2.03 / 2.09). Q2
+full at seeds 0 / 2 (Intel VM): seen 0.82 / 0.84 -> 0.75 / 0.78, unseen 2.99 / 2.98 -> 2.95 / 2.91 vs truth (2.46 /
+2.46 -> 2.41 / 2.38 vs the labels)."""
 SCHEDULES = ("plateau", "cosine")
 """The learning-rate schedules (:attr:`TrainConfig.schedule`)."""
 
