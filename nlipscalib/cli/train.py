@@ -29,6 +29,7 @@ OPTION_OF = {
     "lr": "--lr",
     "weight_decay": "--weight-decay",
     "colour_input": "--colour-input",
+    "reference_smoothing_px": "--reference-smoothing",
     "seed": "--seed",
     "max_seconds": "--max-minutes",
     "threads": "--threads",
@@ -87,6 +88,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "that pixel, which takes the LEDs' fall-off over the image out of what the net must learn; the model file "
         "records it and `nlips infer` divides alike; Q2 full size unseen 3.27 -> 3.05 deg vs truth) or linear (the "
         "filtered colours: the paper's, and the default before the thirty-seventh session)",
+    )
+    p.add_argument(
+        "--reference-smoothing",
+        type=float,
+        help="sigma (px) of the Gaussian the undeformed reference frame gets before the ratio divides by it (default: "
+        "TrainConfig's, 3: its noise would otherwise be a fixed pattern in every press's ratio; Q2 medium seen "
+        "-0.10 to -0.15 deg vs truth; 0: filtered as the samples, as before the thirty-eighth session)",
     )
     p.add_argument(
         "--seed", type=int, default=0, help="seed of the validation split, weights, batch order, dropout (default 0)"
@@ -164,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
             ("schedule", args.schedule),
             ("weight_decay", args.weight_decay),
             ("colour_input", args.colour_input),
+            ("reference_smoothing_px", args.reference_smoothing),
         )
         if v is not None
     }

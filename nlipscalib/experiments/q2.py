@@ -123,7 +123,8 @@ class Q2Config:
     net: TrainConfig = TrainConfig()
     """NLiPsNet and its training (the paper's 256-256-128; seeded; split by press; its colour inputs over the
     undeformed reference's, ``TrainConfig.colour_input``'s default since the thirty-seventh session: ``colour_input =
-    "linear"`` gives the paper's)."""
+    "linear"`` gives the paper's; the reference with its own 3 px Gaussian since the thirty-eighth,
+    ``TrainConfig.reference_smoothing_px``: 0 gives the earlier nets)."""
     upper_bound: bool = True
     """Also train on the twin's true normals (what perfect labels would give)."""
     figure_presses: int = 3

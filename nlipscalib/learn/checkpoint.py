@@ -37,7 +37,8 @@ CHECKPOINT_FILE = "checkpoint.pt"
 def jsonable_config(cfg: TrainConfig) -> dict:
     """``cfg`` as JSON values; the synthetic samples' options left out when ``synthetic_share`` is 0 (none made), and
     ``weight_decay`` when 0 (Adam without decay), so the checkpoints and model keys of trainings without them stay
-    those made before the options existed; ``colour_input`` likewise when ``"linear"``."""
+    those made before the options existed; ``colour_input`` likewise when ``"linear"``, and ``reference_smoothing_px``
+    when 0 (the samples' prefilter) or of no use (linear colours divide by no reference)."""
     d = dataclasses.asdict(cfg)
     d["hidden"] = list(cfg.hidden)
     if not d.get("synthetic_share"):
@@ -47,6 +48,8 @@ def jsonable_config(cfg: TrainConfig) -> dict:
         d.pop("weight_decay", None)
     if d.get("colour_input") == "linear":
         d.pop("colour_input", None)
+    if not d.get("reference_smoothing_px") or "colour_input" not in d:
+        d.pop("reference_smoothing_px", None)
     return d
 
 
@@ -90,7 +93,7 @@ def config_key(cfg: TrainConfig) -> str:
     return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
 
 
-OMITTED_OPTIONS = {"colour_input": "linear", "weight_decay": 0.0, "synthetic_share": 0.0}
+OMITTED_OPTIONS = {"colour_input": "linear", "weight_decay": 0.0, "synthetic_share": 0.0, "reference_smoothing_px": 0.0}
 """What an option :func:`jsonable_config` leaves out means: a checkpoint's options without it were of this value."""
 
 
@@ -102,6 +105,9 @@ def _options_changed(recorded: object, cfg: TrainConfig) -> str:
     if not isinstance(recorded, dict):
         return ""
     old, now = ({**OMITTED_OPTIONS, **options} for options in (recorded, _trajectory_options(cfg)))
+    if "linear" in (old["colour_input"], now["colour_input"]):  # linear colours divide by no reference: not a change
+        for options in (old, now):
+            options.pop("reference_smoothing_px", None)
     names = [k for k in now if k in old] + [k for k in now if k not in old]  # this run's order; one side's last
     return ", ".join(f"{k} {old.get(k)!r} -> {now[k]!r}" for k in names if old.get(k) != now[k])
 

@@ -195,7 +195,11 @@ those over the filtered undeformed reference's at the same pixel (:func:`input_r
 
 
 def input_reference(
-    reference: Mapping[str, np.ndarray], smoothing_px: float, smoothing_colour: float, colour_input: str
+    reference: Mapping[str, np.ndarray],
+    smoothing_px: float,
+    smoothing_colour: float,
+    colour_input: str,
+    reference_smoothing_px: float = 0.0,
 ) -> np.ndarray | None:
     """What a model's colours are divided by before the network (:func:`model_inputs`), or None for ``"linear"``.
 
@@ -205,10 +209,16 @@ def input_reference(
         ``valid`` (H, W) bool), a dataset's or the ones a model file carries
     smoothing_px, smoothing_colour : the samples' prefilter (:class:`.prefilter.Prefilter`)
     colour_input : one of :data:`COLOUR_INPUTS`
+    reference_smoothing_px : float, px, optional
+        > 0: the reference frame gets a Gaussian of this sigma (normalised over the gel, no colour sigma) instead
+        of the samples' prefilter. Why: the undeformed dome's shading is smooth, so its frame's per-pixel noise is
+        all the filter needs to take out, and what the samples' 1 px leaves of it is a fixed pattern every press's
+        ratio is divided by (:attr:`learn.train.TrainConfig.reference_smoothing_px`). 0: filtered as the samples
+        (every model file before the option).
 
     Returns
     -------
-    (H, W, 3) float32 or None: the reference frame filtered as the samples' colours are, at least
+    (H, W, 3) float32 or None: the filtered reference frame, at least
     :data:`~nlipscalib.core.tolerances.MIN_REFERENCE_COLOUR` on the gel and 1 off it (a ratio never divides by 0)
     """
     from ..core.tolerances import MIN_REFERENCE_COLOUR
@@ -217,6 +227,8 @@ def input_reference(
     if colour_input == "linear":
         return None
     valid = np.asarray(reference["valid"]).astype(bool)
+    if reference_smoothing_px > 0:
+        smoothing_px, smoothing_colour = reference_smoothing_px, 0.0
     filtered = Prefilter(valid, smoothing_px, smoothing_colour)(np.asarray(reference["tricolor"], np.float32))
     return np.where(valid[..., None], np.maximum(filtered, MIN_REFERENCE_COLOUR), 1.0).astype(np.float32)
 
@@ -248,11 +260,13 @@ def save_model(
     smoothing_px: float = 0.0,
     smoothing_colour: float = 0.0,
     colour_input: str = "linear",
+    reference_smoothing_px: float = 0.0,
 ) -> Path:
     """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma,
     ``smoothing_colour`` its colour sigma (written only when > 0: the files of the Gaussian alone stay as they were),
     ``colour_input`` what its colour inputs are (:data:`COLOUR_INPUTS`; written only when not ``"linear"``, so the
-    files of linear colours stay as they were).
+    files of linear colours stay as they were), ``reference_smoothing_px`` the sigma of the reference a ratio is
+    taken over (:func:`input_reference`; written only when > 0 with the ratio: absent = the samples' prefilter).
     """
     import io
 
@@ -274,6 +288,8 @@ def save_model(
         payload["smoothing_colour"] = float(smoothing_colour)
     if colour_input != "linear":
         payload["colour_input"] = str(colour_input)
+        if reference_smoothing_px > 0:
+            payload["reference_smoothing_px"] = float(reference_smoothing_px)
     buf = io.BytesIO()
     torch.save(payload, buf)
     return write_bytes(path, buf.getvalue())
@@ -309,8 +325,10 @@ class LoadedModel:
         self.smoothing_px = float(payload.get("smoothing_px", 0.0))  # files from before the prefilter: raw inputs
         self.smoothing_colour = float(payload.get("smoothing_colour", 0.0))  # the prefilter's colour sigma (0: none)
         self.colour_input: str = payload.get("colour_input", "linear")  # files from before the option: linear
+        # files from before the option: the reference filtered as the samples (0)
+        self.reference_smoothing_px = float(payload.get("reference_smoothing_px", 0.0))
         self.input_reference = input_reference(
-            self.reference, self.smoothing_px, self.smoothing_colour, self.colour_input
+            self.reference, self.smoothing_px, self.smoothing_colour, self.colour_input, self.reference_smoothing_px
         )
         """(H, W, 3) float32 or None: what the colours are divided by before the network (:func:`model_inputs`)."""
 
@@ -393,6 +411,7 @@ def _check_container(payload: dict, path: Path, remedy: str) -> dict:
     try:  # a bad sigma is named here, not by the prefilter at inference ("prefilter sigma must be ...")
         check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
         check_colour_sigma(payload.get("smoothing_colour", 0.0), "'smoothing_colour'")
+        check_sigma(payload.get("reference_smoothing_px", 0.0), "'reference_smoothing_px'")
     except ConfigError as exc:
         raise CaptureError(f"{path}: {exc}") from None
     return cam

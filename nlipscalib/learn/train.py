@@ -48,6 +48,7 @@ from .model import (
     save_model,
     set_colour_normalisation,
 )
+from .prefilter import check_sigma
 from .publish import clean_interrupted_writes
 from .resolution import INFO_KEY, calibrated_contacts
 from .torch_device import check_device, torch_threads
@@ -81,6 +82,12 @@ MAX_WEIGHT_DECAY = 1.0
 MAX_SYNTHETIC_SHARE = 4.0
 """Largest :attr:`TrainConfig.synthetic_share`: four synthetic samples per real one already let the model's light
 outweigh what the presses show."""
+DEFAULT_REFERENCE_SMOOTHING_PX = 3.0
+""":attr:`TrainConfig.reference_smoothing_px` by default: 3 px (docs/experiments/RESULTS.md, s38-unseen3). On Q2 medium
+at three training seeds, against the samples' 1 px prefilter: seen 0.89 / 0.95 / 0.93 -> 0.79 / 0.84 / 0.77 deg vs
+truth, unseen 2.93 / 2.91 / 2.97 -> 2.88 / 2.87 / 2.87 (vs the labels 2.12 / 2.15 / 2.17 -> 2.04 / 2.03 / 2.09). Q2
+full at seeds 0 / 2 (Intel VM): seen 0.82 / 0.84 -> 0.75 / 0.78, unseen 2.99 / 2.98 -> 2.95 / 2.91 vs truth (2.46 /
+2.46 -> 2.41 / 2.38 vs the labels)."""
 SCHEDULES = ("plateau", "cosine")
 """The learning-rate schedules (:attr:`TrainConfig.schedule`)."""
 
@@ -179,6 +186,21 @@ class TrainConfig:
     ``colour_input = "ratio"`` before it became the default (their models are reused too), and never those of a
     linear net."""
 
+    reference_smoothing_px: float = dataclasses.field(default=DEFAULT_REFERENCE_SMOOTHING_PX, metadata={OMIT_AT: 0.0})
+    """Sigma (px) of the Gaussian the undeformed reference frame gets before a ratio's colours are divided by it
+    (``colour_input = "ratio"``; :func:`learn.model.input_reference`, normalised over the gel; the model file
+    records it and inference divides alike). 0: the samples' prefilter (``smoothing_px``, ``smoothing_colour``),
+    as before the thirty-eighth session. Why wider: the undeformed dome's shading is smooth, so the reference frame
+    needs no edge kept and its noise can go; what the samples' 1 px leaves of it (0.36 % of the colour on the twin's
+    reference frames, 1.4 % raw per pixel, at 320x240 and 640x480 alike) is a fixed pattern that every press's ratio
+    at that pixel is divided by, beside the press's own noise. At 3 px the reference's noise falls ~3x and the
+    Gaussian's flattening of the dome's shading stays at ~0.04 % (Q2 medium, 320x240; a 640x480 frame's shading is
+    smoother per pixel). Measured on Q2 medium (:data:`DEFAULT_REFERENCE_SMOOTHING_PX`): the seen split 0.10-0.15
+    deg better vs truth at three training seeds, the unseen 0.04-0.10 (the cone and screw most, the coin unchanged:
+    its walls' error is extrapolation, not noise), the validation AAE 0.93 / 1.06 / 0.97 -> 0.81 / 0.94 / 0.82.
+    Unused with linear colours, and then left out of the checkpoints' and model keys' options, as at 0
+    (:func:`learn.checkpoint.jsonable_config`), so those keys stay as they were."""
+
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
         if self.labels not in ("nlips", "true"):
@@ -206,6 +228,7 @@ class TrainConfig:
         decay = self.weight_decay
         if isinstance(decay, bool) or not (isinstance(decay, (int, float)) and 0 <= decay <= MAX_WEIGHT_DECAY):
             raise ConfigError(f"weight_decay must be in [0, {MAX_WEIGHT_DECAY:g}] (0: none), got {decay!r}")
+        check_sigma(self.reference_smoothing_px, "reference_smoothing_px")
         if self.colour_input not in COLOUR_INPUTS:
             raise ConfigError(
                 f"colour_input must be one of {', '.join(COLOUR_INPUTS)}, got {self.colour_input!r}"
@@ -462,7 +485,9 @@ def _training_data(
     samples are labelled or none is in contact, and (from ``dataset.reference``) when the reference is unreadable."""
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
     reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
-    divide = input_reference(reference, dataset.smoothing_px, dataset.smoothing_colour, cfg.colour_input)
+    divide = input_reference(
+        reference, dataset.smoothing_px, dataset.smoothing_colour, cfg.colour_input, cfg.reference_smoothing_px
+    )
     x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels, divide)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels, divide)
     synthetic = 0
@@ -549,6 +574,7 @@ def _save_trained(
         smoothing_px=dataset.smoothing_px,
         smoothing_colour=dataset.smoothing_colour,
         colour_input=cfg.colour_input,
+        reference_smoothing_px=cfg.reference_smoothing_px,
     )
 
 

@@ -127,6 +127,20 @@ def test_the_default_nets_key_is_an_explicit_ratio_runs_and_a_linear_nets_is_as_
     def key(**options) -> str:
         return learning.model_files(tmp_path, names, stamps, TrainConfig(**options))[0]
 
-    assert key() == key(colour_input="ratio", weight_decay=0.5) != key(colour_input="ratio", weight_decay=0.2)
-    assert key(colour_input="ratio", weight_decay=0.2) == "b67584b93f108c95"
+    ratio_05 = key(colour_input="ratio", weight_decay=0.5, reference_smoothing_px=3.0)
+    assert key() == ratio_05 != key(colour_input="ratio", weight_decay=0.2, reference_smoothing_px=3.0)
+    assert key(colour_input="ratio", weight_decay=0.2, reference_smoothing_px=0.0) == "b67584b93f108c95"
     assert key(colour_input="linear", weight_decay=0.2) == "68a5d7deb43bc6c6"
+    assert key(colour_input="linear", weight_decay=0.2, reference_smoothing_px=5.0) == "68a5d7deb43bc6c6"
+
+
+def test_the_reference_smoothings_default_trains_a_new_net_and_at_zero_reuses_the_thirty_seventh_sessions(tmp_path):
+    """The reference's own Gaussian (``TrainConfig.reference_smoothing_px``, 3 px) became the default in the
+    thirty-eighth session: the default's key is new (its nets are other nets), and ``reference_smoothing_px = 0``
+    gives the key that the default gave before (``c581871dc4f0e76b`` at bc750865), so those nets are reused."""
+    names, stamps = ["a", "b"], {"a": "1", "b": "2"}
+
+    def key(**options) -> str:
+        return learning.model_files(tmp_path, names, stamps, TrainConfig(**options))[0]
+
+    assert key(reference_smoothing_px=0.0) == "c581871dc4f0e76b" != key()

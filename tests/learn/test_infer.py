@@ -96,7 +96,9 @@ def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained_model,
     divide = predictor.model.input_reference
     if divide is not None:  # a model of colour ratios: the reference frame itself is 1 wherever it lies above the floor
         assert predictor.model.colour_input == "ratio"
-        ones = prefilter(ref.linear(ref.tricolor)) / divide
+        # filtered with the reference's own Gaussian (TrainConfig.reference_smoothing_px, 3 px by default)
+        assert predictor.model.reference_smoothing_px == 3.0
+        ones = Prefilter(predictor.valid, 3.0, 0.0)(ref.linear(ref.tricolor)) / divide
         lit = predictor.valid & (divide > MIN_REFERENCE_COLOUR).all(-1)
         assert lit.sum() > 0.9 * predictor.valid.sum()
         np.testing.assert_allclose(ones[lit], 1.0, atol=1e-6)

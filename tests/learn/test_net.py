@@ -562,11 +562,16 @@ def test_a_model_of_colour_ratios_divides_by_the_datasets_filtered_reference_and
         assert written(TrainConfig())["colour_input"] == "ratio"
         assert written(TrainConfig()) == written(TrainConfig(colour_input="ratio"))
         assert "colour_input" not in written(TrainConfig(colour_input="linear"))
+    from nlipscalib.learn.prefilter import Prefilter
+
     model = load_model(trained_ratio)
     assert model.colour_input == "ratio" and model.info["config"]["colour_input"] == "ratio"
-    ref = calib.filtered_reference()
+    # the reference's own Gaussian (TrainConfig.reference_smoothing_px, 3 px by default), not the samples' prefilter
+    assert model.reference_smoothing_px == model.info["config"]["reference_smoothing_px"] == 3.0
     valid = calib.reference()["valid"]
+    ref = Prefilter(valid, 3.0, 0.0)(calib.reference()["tricolor"])
     np.testing.assert_array_equal(model.input_reference[valid], ref[valid])
+    assert not np.array_equal(ref[valid], calib.filtered_reference()[valid])
     s = calib.arrays([HELD_OUT])
     ratio = s["rgb"] / ref[s["pixel"][:, 1], s["pixel"][:, 0]]
     # the colour normalisation was taken from the ratios (about 1), not from the linear colours
@@ -577,6 +582,80 @@ def test_a_model_of_colour_ratios_divides_by_the_datasets_filtered_reference_and
         want = model.net(torch.from_numpy(np.concatenate([s["pixel"], ratio], 1).astype(np.float32))).numpy()
     np.testing.assert_allclose(net_predict(model, s["pixel"], s["rgb"]), want, atol=1e-6)
     np.testing.assert_allclose(model_inputs(s["pixel"], s["rgb"], model.input_reference)[:, 2:], ratio, rtol=1e-6)
+
+
+def test_the_ratios_reference_smoothing_takes_the_references_noise_out_and_keeps_its_shading():
+    """input_reference with ``reference_smoothing_px``: on a smooth shading field (a ramp and a gentle bump, as the
+    undeformed dome's) with 1.4 % noise per pixel, as the twin's reference frame has, 3 px leaves about a third of the
+    noise the samples' 1 px does (1 / (2 sqrt(pi) sigma) of it), and the field itself within 0.1 % of its value; 0 is
+    the samples' prefilter bit for bit."""
+    from nlipscalib.learn.model import input_reference
+    from nlipscalib.learn.prefilter import Prefilter
+
+    h, w = 120, 160
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    field = 0.5 + 0.2 * u / w + 0.1 * np.exp(-((u - 80) ** 2 + (v - 60) ** 2) / (2 * 40.0**2))
+    clean = np.repeat(field[..., None], 3, -1)
+    noisy = clean * (1 + 0.014 * np.random.default_rng(0).standard_normal(clean.shape))
+    valid = np.ones((h, w), bool)
+    reference = {"tricolor": noisy.astype(np.float32), "valid": valid}
+    inner = (slice(15, -15), slice(15, -15))  # the Gaussian's normalisation at the frame's edge aside
+
+    def error(a: np.ndarray) -> float:
+        return float(np.std((a / clean - 1)[inner]))
+
+    samples = input_reference(reference, 1.0, 0.08, "ratio")
+    wide = input_reference(reference, 1.0, 0.08, "ratio", reference_smoothing_px=3.0)
+    assert error(wide) < 0.4 * error(samples)
+    assert 0.4 * 0.014 / (2 * np.sqrt(np.pi)) < error(samples)
+    exact = input_reference({"tricolor": clean.astype(np.float32), "valid": valid}, 1.0, 0.0, "ratio", 3.0)
+    np.testing.assert_allclose(exact[inner], clean[inner], rtol=1e-3)
+    np.testing.assert_array_equal(samples, input_reference(reference, 1.0, 0.08, "ratio", reference_smoothing_px=0.0))
+    np.testing.assert_array_equal(samples, Prefilter(valid, 1.0, 0.08)(reference["tricolor"]))
+    assert input_reference(reference, 1.0, 0.08, "linear", 3.0) is None
+
+
+def test_reference_smoothing_is_in_the_keys_of_ratio_nets_only_and_a_file_without_it_filters_as_the_samples(
+    trained_ratio, calib, tmp_path
+):
+    """The model keys and checkpoints hold ``reference_smoothing_px`` (a net of another one is never reused as this
+    one's); at 0, and for linear colours (no reference), it is left out, so those keys stay as they were. A model
+    file without the field (every one before the option) divides by the reference filtered as the samples, and a
+    file with a sigma no filter takes is refused naming the file."""
+    import torch
+
+    from nlipscalib.learn.checkpoint import jsonable_config
+    from nlipscalib.learn.train import DEFAULT_REFERENCE_SMOOTHING_PX, TrainConfig
+
+    assert TrainConfig().reference_smoothing_px == DEFAULT_REFERENCE_SMOOTHING_PX == 3.0
+    assert jsonable_config(TrainConfig())["reference_smoothing_px"] == 3.0
+    assert "reference_smoothing_px" not in jsonable_config(TrainConfig(reference_smoothing_px=0.0))
+    assert "reference_smoothing_px" not in jsonable_config(TrainConfig(colour_input="linear"))
+    for bad in (-1.0, float("nan"), 1000.0):
+        with pytest.raises(Exception, match="reference_smoothing_px must be a sigma in"):
+            TrainConfig(reference_smoothing_px=bad)
+    payload = torch.load(trained_ratio, weights_only=True)
+    assert payload["reference_smoothing_px"] == 3.0
+    del payload["reference_smoothing_px"]
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    valid = calib.reference()["valid"]
+    np.testing.assert_array_equal(load_model(old).input_reference[valid], calib.filtered_reference()[valid])
+    payload["reference_smoothing_px"] = -2.0
+    torch.save(payload, tmp_path / "bad.pt")
+    with pytest.raises(CaptureError, match=r"bad\.pt: 'reference_smoothing_px' must be a sigma in \[0, 50\] px"):
+        load_model(tmp_path / "bad.pt")
+
+
+def test_cli_train_reference_smoothing_is_checked_in_one_line_and_recorded(calib, tmp_path, capsys):
+    out = tmp_path / "m.pt"
+    args = ["--hidden", "8,8", "--epochs", "1", "--exclude", HELD_OUT, "--no-progress"]
+    assert main(["train", str(calib.folder), "--out", str(out), "--reference-smoothing", "-1", *args]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "error: --reference-smoothing must be a sigma in [0, 50] px, got -1.0" in lines[0], lines
+    assert not out.exists()
+    assert main(["train", str(calib.folder), "--out", str(out), "--reference-smoothing", "2", *args]) == 0
+    assert load_model(out).reference_smoothing_px == 2.0
 
 
 def test_a_model_file_of_linear_colours_holds_no_colour_input_and_an_unknown_one_is_refused(trained, tmp_path):

@@ -920,3 +920,6 @@ def test_the_options_a_checkpoint_left_out_are_named_by_what_they_meant():
     no_decay = dataclasses.replace(ratio, weight_decay=0.0)
     assert _options_changed(_trajectory_options(no_decay), ratio) == f"weight_decay 0.0 -> {ratio.weight_decay}"
     assert _options_changed(_trajectory_options(ratio), ratio) == ""
+    # the reference's Gaussian (thirty-eighth session): a ratio checkpoint from before it meant 0 (the samples' filter)
+    before = dataclasses.replace(ratio, reference_smoothing_px=0.0)
+    assert _options_changed(_trajectory_options(before), ratio) == "reference_smoothing_px 0.0 -> 3.0"
