@@ -33,22 +33,11 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
-    """A tiny model of the exact-data sensor (64x48, no rendering) and the tri-colour frames of its presses."""
-    from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
-    from nlipscalib.learn.train import train
-    from nlipscalib.pipeline import solve_folder
-    from nlipscalib.solver import SolverOptions
-    from tests.learn.test_resume import NAMES, TINY
-    from tests.solver import synth
+    """A tiny model of the exact-data sensor (64x48, no rendering; tests/learn/test_infer's) and its presses' frames."""
+    from tests.learn.test_infer import tiny_model_and_presses
+    from tests.learn.test_resume import NAMES
 
-    root = tmp_path_factory.mktemp("watch_model")
-    synth.make_press(root / "reference", "none", size=(64, 48))
-    for name, kind in zip(NAMES, ("sphere", "cube", "sphere")):
-        synth.make_press(root / name, kind, size=(64, 48))
-        solve_folder(root / name, options=SolverOptions(max_iters=6), figures=False, progress=False)
-    build_dataset([root / n for n in NAMES], root / "reference", root / "calib", progress=False)
-    out = root / "m.pt"
-    train(CalibrationDataset(root / "calib"), TINY, out, progress=False)
+    out, root = tiny_model_and_presses(tmp_path_factory.mktemp("watch_model"))
     return out, [root / n / "tricolor.png" for n in NAMES]
 
 

@@ -1,5 +1,7 @@
 """nlips infer: reconstructions in the core format, PLY, frames, only changed pixels through the network."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -489,6 +491,12 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
     """A tiny model of the exact-data sensor (64x48, no rendering: seconds), with the presses it came from."""
+    return tiny_model_and_presses(tmp_path_factory.mktemp("exposure_model"))
+
+
+def tiny_model_and_presses(root: Path) -> tuple[Path, Path]:
+    """(model file, folder of its presses): presses NAMES of the exact-data sensor solved, sampled and trained
+    (tests/learn/test_resume's TINY net) under ``root``; tests/cli/test_infer_watch's model too."""
     from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
     from nlipscalib.learn.train import train
     from nlipscalib.pipeline import solve_folder
@@ -496,7 +504,6 @@ def tiny_model(tmp_path_factory):
     from tests.learn.test_resume import NAMES, TINY
     from tests.solver import synth
 
-    root = tmp_path_factory.mktemp("exposure_model")
     synth.make_press(root / "reference", "none", size=(64, 48))
     for name, kind in zip(NAMES, ("sphere", "cube", "sphere")):
         synth.make_press(root / name, kind, size=(64, 48))
