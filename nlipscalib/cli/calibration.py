@@ -176,8 +176,6 @@ def run(args: argparse.Namespace) -> int:
         check_unchanged([reference, *presses])
     reference_fits(reference, presses)
     responses_agree(reference, presses)
-    if not args.keep_tricolor_mismatch:
-        tricolor_agrees(reference, presses, root)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
     if args.led_model == "disks":  # no LED file, or one without disks: one line now, not after the hold
@@ -185,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_own_folder(out, presses, root / DEFAULT_DIR)
     check_can_make(out)  # a file in its place or a read-only disk: one line now, not after solving every press
+    if not args.keep_tricolor_mismatch:  # after the arguments' own checks: a mistyped --out is said first
+        tricolor_agrees(reference, presses, root)
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
     damaged = _left_out_damaged(root, presses, out)
     presses = [p for p in presses if p.name not in damaged]
