@@ -8,6 +8,7 @@ line is printed: it had no keyword check).
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import timeit
 
@@ -21,6 +22,7 @@ def _median_us(call) -> float:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args()
     print(f"SolverOptions(): {_median_us(SolverOptions):.1f} us")
     try:
         from nlipscalib.solver.press import KEYWORDS

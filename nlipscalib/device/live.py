@@ -103,6 +103,9 @@ class ReadAhead:
 
         self.source = source
         self.shape = source.shape
+        # the curve its frames were undone with as they were converted: a stream asks it of the source it is given
+        # (``MismatchWatch.in_light``), which is this one when a recording is read ahead; None: frames as stored
+        self.tone_curve = getattr(source, "tone_curve", None)
         self._indexed = callable(getattr(source, "frame_at", None))
         n = max(1, int(workers or decoding_workers())) if self._indexed else 1
         self._ahead = 2 * n if self._indexed else 1

@@ -77,7 +77,7 @@ def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipp
     def writer() -> None:
         assert started.wait(GIVE_UP_S)
         _drop(watched, "z_first.png", frames[0])
-        (watched / "notes.txt").write_text("not a frame")
+        (watched / "notes.txt").write_text("not a frame", encoding="utf-8")
         write_png16(watched / "small.png", np.full((24, 32, 3), 30000, np.uint16))
         (watched / "cut.png").write_bytes(frames[1].read_bytes()[:200])
         (watched / "b_second.png").write_bytes(frames[1].read_bytes())  # in place: its close says it is whole

@@ -112,8 +112,8 @@ def test_a_file_written_again_is_read_again_and_an_unchanged_one_never(folder):
 
 def test_other_files_unreadable_images_and_other_sizes_are_skipped_with_a_warning(folder, caplog):
     with caplog.at_level(logging.WARNING), WatchedFolder(folder, SHAPE) as source:
-        (folder / "notes.txt").write_text("not a frame")
-        (folder / "frame.png.tmp").write_text("a writer's temporary")
+        (folder / "notes.txt").write_text("not a frame", encoding="utf-8")
+        (folder / "frame.png.tmp").write_text("a writer's temporary", encoding="utf-8")
         (folder / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40)
         _renamed_into_place(folder, "big.png", 7, shape=(13, 16))
         _renamed_into_place(folder, "good.png", 500)

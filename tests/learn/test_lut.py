@@ -153,7 +153,7 @@ def test_nlips_infer_and_eval_run_the_table_on_presses_and_frames_as_on_nlipsnet
     frames.mkdir()
     shutil.copy(root / NAMES[1] / "tricolor.png", frames / "f1.png")
     assert main(["--no-progress", "infer", str(table_file), str(frames), "--out", str(tmp_path / "fr")]) == 0
-    assert json.loads((tmp_path / "fr" / "f1" / "report.json").read_text())["method"] == "lut"
+    assert json.loads((tmp_path / "fr" / "f1" / "report.json").read_text(encoding="utf-8"))["method"] == "lut"
     assert main(["--no-progress", "eval", str(presses / NAMES[1]), "--result", str(tmp_path / "fr" / "f1")]) == 0
 
 

@@ -180,5 +180,5 @@ def test_an_unknown_smooth_deformation_is_refused_in_one_line():
     from nlipscalib.core.errors import ConfigError
     from nlipscalib.solver import SolverOptions
 
-    with pytest.raises(ConfigError, match="smooth_deformation must be auto, on or off"):
+    with pytest.raises(ConfigError, match=r"smooth_deformation: must be one of \['auto', 'on', 'off'\], got 'yes'"):
         SolverOptions(smooth_deformation="yes")
