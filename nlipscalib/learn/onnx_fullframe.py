@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,8 +47,6 @@ MAX_BILATERAL_OFFSETS = 400
 """Most offsets of a bilateral filter's disc the graph unrolls (about 12 nodes each): 29 at the default sigma of 1 px,
 253 at 3 px; a wider disc (sigma above ~3.5 px) would make a graph of thousands of nodes that runs seconds a frame, so
 its export is refused."""
-SUFFIX = ".frame.onnx"
-"""The full-frame graph's file beside its model: ``MODEL.frame.onnx``."""
 
 
 def full_frame_refusal(model: LoadedModel) -> str | None:
@@ -58,10 +57,11 @@ def full_frame_refusal(model: LoadedModel) -> str | None:
         return "a lookup table (`nlips lut`), not a network: there is no graph to export"
     if model.smoothing_colour and len(bilateral_offsets(model.smoothing_px)) > MAX_BILATERAL_OFFSETS:
         count = len(bilateral_offsets(model.smoothing_px))
+        sigmas = f"smoothing_px {model.smoothing_px:g}, smoothing_colour {model.smoothing_colour:g}"
         return (
-            f"its bilateral prefilter (smoothing_px {model.smoothing_px:g}, smoothing_colour {model.smoothing_colour:g}) "
-            f"has {count} offsets in its disc, more than the {MAX_BILATERAL_OFFSETS} a full-frame graph unrolls (one "
-            "branch of nodes each): the per-pixel export (`nlips export` without --full-frame) takes its filtered colours"
+            f"its bilateral prefilter ({sigmas}) has {count} offsets in its disc, more than the "
+            f"{MAX_BILATERAL_OFFSETS} a full-frame graph unrolls (a branch of nodes each, seconds a frame); the "
+            "per-pixel export (`nlips export` without --full-frame) takes colours filtered by the caller"
         )
     return None
 
@@ -171,7 +171,7 @@ def frame_contract(model: LoadedModel, camera_response: str) -> dict:
 class _Graph:
     """Nodes and initializers being made (onnx.helper's), each node named by its output."""
 
-    def __init__(self, onnx):
+    def __init__(self, onnx: ModuleType):
         self.onnx, self.nodes, self.weights = onnx, [], []
 
     def init(self, name: str, values: np.ndarray) -> str:
