@@ -44,9 +44,10 @@ FRAME_INPUT, NORMALS_OUTPUT, GEL_OUTPUT = "tricolor", "normals", "gel"
 """Names of the graph's input, (H, W, 3) uint16 stored values, and outputs, (H, W, 3) float32 unit normals (NaN off
 the gel) and (H, W) bool gel mask."""
 MAX_BILATERAL_OFFSETS = 400
-"""Most offsets of a bilateral filter's disc the graph unrolls (about 12 nodes each): 29 at the default sigma of 1 px,
-253 at 3 px; a wider disc (sigma above ~3.5 px) would make a graph of thousands of nodes that runs seconds a frame, so
-its export is refused."""
+"""Most offsets of a bilateral filter's disc the graph unrolls (12 nodes each): 29 at the default sigma of 1 px, 253
+at 3 px, 441 above 11/3 px. The graph's filter grows with them: Q2's 640x480 model took 0.95 s of one CPU core a
+frame at 1 px (349 nodes, the network most of it) and 2.5 s at 3.6 px (377 offsets, 4,177 nodes; load 14,
+s39-onnxfull); beyond, a graph of thousands more nodes and seconds more a frame, so its export is refused."""
 
 
 def full_frame_refusal(model: LoadedModel) -> str | None:
