@@ -284,17 +284,27 @@ def export_full_frame(model: LoadedModel, out: str | Path, check: bool = True) -
 
 
 def check_frames(model: LoadedModel) -> list[np.ndarray]:
-    """(H, W, 3) uint16 frames as the camera stores them for the export's check: the model's reference frame, as it
-    is and 10 % darker and brighter (a contact changes the light), encoded with the sensor's tone curve."""
+    """(H, W, 3) uint16 frames as the camera stores them for the export's check, encoded with the sensor's tone curve:
+    the model's reference frame as it is, 10 % darker and brighter (a contact changes the light), and with a
+    synthetic contact: a disc of a quarter of the image's height at the gel's centre whose colours tilt across it
+    (red up to 1.3x on one side, blue on the other), its edge a step (what the bilateral filter stops at)."""
     from ..core.sensor_record import response_table_of
     from ..core.sensor_response import redo_tone_curve
 
     ref, s = model.reference, model.sensor
     table = response_table_of(s)
+    light = ref["tricolor"].astype(np.float64)
+    rows, cols = np.nonzero(ref["valid"])
+    centre = (np.median(rows), np.median(cols)) if len(rows) else (0.0, 0.0)
+    v, u = np.indices(light.shape[:2])
+    radius = light.shape[0] / 8
+    across = np.clip((u - centre[1]) / radius, -1, 1)
+    inside = (v - centre[0]) ** 2 + (u - centre[1]) ** 2 <= radius**2
+    tilt = np.stack([1 + 0.3 * across, np.ones_like(across), 1 - 0.3 * across], -1)
+    contact = light * np.where(inside[..., None], tilt, 1.0)
     frames = []
-    for gain in (1.0, 0.9, 1.1):
-        values = ref["tricolor"].astype(np.float64) * gain * (s["white_level"] - s["black_level"]) + ref["dark"]
-        values = np.clip(np.rint(values), 0, 65535)
+    for frame in (light, light * 0.9, light * 1.1, contact):
+        values = np.clip(np.rint(frame * (s["white_level"] - s["black_level"]) + ref["dark"]), 0, 65535)
         frames.append(np.clip(np.rint(redo_tone_curve(values, table)), 0, 65535).astype(np.uint16))
     return frames
 
