@@ -62,6 +62,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
     check_writable(out.parent)  # a read-only disk: one line now, not after loading the model and exporting it
     if args.full_frame:
+        if out.resolve() == Path(args.model).resolve().with_suffix(".onnx"):  # `nlips infer` would find another graph
+            raise ConfigError(
+                f"--out {out}: the per-pixel export's name, which `nlips infer` and `nlips live` read; give another "
+                f"(default {Path(args.model).with_suffix(FULL_FRAME_SUFFIX)})"
+            )
         return _full_frame(args.model, out)
     beside = out.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     # beside the model, its ONNX file is one of a training's files: read and written while no training publishes

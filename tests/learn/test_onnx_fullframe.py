@@ -157,6 +157,11 @@ def test_nlips_export_full_frame_writes_the_graph_beside_the_model_and_states_it
     assert [o.name for o in proto.graph.output] == ["normals", "gel"]
     assert main(["export", str(model_path), "--full-frame", "--out", str(tmp_path / "copy.onnx")]) == 0
     assert (tmp_path / "copy.onnx").read_bytes() == path.read_bytes()
+    capsys.readouterr()
+    # never under the per-pixel export's name, which `nlips infer` reads
+    assert main(["export", str(model_path), "--full-frame", "--out", str(tmp_path / "net.onnx")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "per-pixel export's name" in err and not (tmp_path / "net.onnx").exists()
 
 
 def test_a_bilateral_filter_of_too_wide_a_disc_is_refused_in_one_line(trained, tmp_path, capsys):
