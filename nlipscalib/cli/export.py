@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:  # named in hints only: torch is imported when a model is exported
     from ..learn.model import LoadedModel
 
+FULL_FRAME_SUFFIX = ".frame.onnx"
+"""``--full-frame``'s file beside its model: MODEL.frame.onnx."""
 CHECK_PIXELS = 20000
 """At most this many of the reference frame's gel pixels check the export."""
 
@@ -26,7 +28,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "on the model's reference frame, its colours as they are and 10 % darker and brighter.",
     )
     p.add_argument("model", help="model file (.pt) from `nlips train`")
-    p.add_argument("--out", help="ONNX file to write (default: MODEL.onnx beside the model)")
+    p.add_argument(
+        "--out", help="ONNX file to write (default: MODEL.onnx beside the model, MODEL.frame.onnx with --full-frame)"
+    )
+    p.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="write instead a standalone graph of the whole frame for programs without nlipscalib: the tri-colour "
+        "frame as the camera stores it (H, W, 3 uint16) in, the normal map (NaN off the gel) and the gel mask out "
+        "(tone curve, dark frame, prefilter and network inside; checked against the PyTorch full-frame path)",
+    )
     p.set_defaults(func=run)
 
 
@@ -42,13 +53,21 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import print_result, say
     from .folders import names_a_folder
 
+    suffix = FULL_FRAME_SUFFIX if args.full_frame else ".onnx"
     if args.out and names_a_folder(args.out):  # `--out x.onnx/` wrote the file x.onnx (pathlib drops the slash)
-        example = Path(args.out) / Path(args.model).with_suffix(".onnx").name
+        example = Path(args.out) / Path(args.model).with_suffix(suffix).name
         raise ConfigError(f"--out {args.out}: a folder; give the ONNX file to write (e.g. {example})")
-    out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
+    out = Path(args.out) if args.out else Path(args.model).with_suffix(suffix)
     if out.suffix.lower() != ".onnx":
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
     check_writable(out.parent)  # a read-only disk: one line now, not after loading the model and exporting it
+    if args.full_frame:
+        if out.resolve() == Path(args.model).resolve().with_suffix(".onnx"):  # `nlips infer` would find another graph
+            raise ConfigError(
+                f"--out {out}: the per-pixel export's name, which `nlips infer` and `nlips live` read; give another "
+                f"(default {Path(args.model).with_suffix(FULL_FRAME_SUFFIX)})"
+            )
+        return _full_frame(args.model, out)
     beside = out.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     # beside the model, its ONNX file is one of a training's files: read and written while no training publishes
     # its own (learn.publish), or an export of the model it replaced would land beside the new one
@@ -71,6 +90,24 @@ def run(args: argparse.Namespace) -> int:
     )
     print_result(path)  # stdout: the ONNX file alone (scripts); its check on stderr
     say(f"{path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg; {used}")
+    return 0
+
+
+def _full_frame(model_path: str, out: Path) -> int:
+    """``--full-frame``: the standalone graph of the whole frame (``learn.onnx_fullframe``), checked against the
+    PyTorch full-frame path before it takes its name. Not one of a training's files (inference never reads it), so
+    written without the model's lock."""
+    from ..learn.model import load_model
+    from ..learn.onnx_fullframe import export_full_frame
+    from ..progress import print_result, say
+
+    path, angle = export_full_frame(load_model(model_path), out)  # a model it cannot hold: one line, nothing written
+    print_result(path)
+    say(
+        f"{path}: onnxruntime's normal map vs PyTorch's full-frame path: max angular difference {angle:.4f} deg on the "
+        "gel (the reference frame, 10 % darker and brighter, and with a synthetic contact); input 'tricolor' "
+        "(H, W, 3) uint16 as the camera stores it, outputs 'normals' (NaN off the gel) and 'gel' (docs/formats.md)"
+    )
     return 0
 
 

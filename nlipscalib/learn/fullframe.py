@@ -28,7 +28,7 @@ from .change import channel_ratio
 from .cuda_graph import record
 from .integrate_geometry import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
-from .prefilter import kernel_radius
+from .prefilter import bilateral_offsets, gaussian_kernel, kernel_radius
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
@@ -223,18 +223,11 @@ class _GelFilter:
         self.radius = kernel_radius(sigma_px)
         self.valid = torch.as_tensor(valid, device=device)
         self.colour = float(colour_sigma)
-        r = self.radius
         # OpenCV's bilateral window: the offsets within the radius (a disc), each with its spatial Gaussian weight
         # (none without a radius: a model trained unfiltered, smoothing_px 0, has no window and no sigma to divide by)
-        self.offsets = [
-            (dy, dx, float(np.exp(-(dy * dy + dx * dx) / (2 * sigma_px**2))))
-            for dy in range(-r, r + 1)
-            for dx in range(-r, r + 1)
-            if r and dy * dy + dx * dx <= r * r
-        ]
+        self.offsets = bilateral_offsets(sigma_px)
         if self.radius and not self.colour:
-            cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")
-            self.kernel = [float(w) for w in cv2.getGaussianKernel(2 * self.radius + 1, sigma_px, cv2.CV_32F).ravel()]
+            self.kernel = [float(w) for w in gaussian_kernel(sigma_px)]
             self.weight = self._blur(self.valid.to(torch.float32)[None]).clamp_min(1e-6)
 
     def _blur(self, a: torch.Tensor):

@@ -184,21 +184,8 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     if model.input_reference is not None:  # a model of colour ratios: divided here, so the file is standalone
         nodes, weights = _ratio_nodes(pb, model.input_reference)
         current = RATIO_INPUT
-    for k, (W, b) in enumerate(linear):
-        weights.append(_tensor(pb, W.T, f"W{k}"))
-        weights.append(_tensor(pb, b, f"b{k}"))
-        nodes.append(_node(pb, "MatMul", [current, f"W{k}"], [f"matmul{k}"], f"layer{k}"))
-        nodes.append(_node(pb, "Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], f"bias{k}"))
-        current = f"linear{k}"
-        if k < len(linear) - 1:
-            nodes.append(_node(pb, "Relu", [current], [f"relu{k}"], f"relu{k}"))
-            current = f"relu{k}"
-    weights.append(_tensor(pb, np.array([1e-8], np.float32), "min_norm"))
-    nodes += [
-        _node(pb, "ReduceL2", [current], ["norm"], "norm", keepdims=1, axes=[-1]),
-        _node(pb, "Max", ["norm", "min_norm"], ["norm_clamped"], "clamp"),
-        _node(pb, "Div", [current, "norm_clamped"], [OUTPUT], "unit"),
-    ]
+    layers, layer_weights = network_nodes(pb, linear, current, OUTPUT)
+    nodes, weights = nodes + layers, weights + layer_weights
     graph = pb.GraphProto(
         node=nodes, name="nlipsnet", input=[_value(pb, INPUT, 5)], output=[_value(pb, OUTPUT, 3)], initializer=weights
     )
@@ -212,6 +199,32 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     for key, value in meta.items():
         proto.metadata_props.add(key=key, value=value)
     return proto
+
+
+def network_nodes(
+    pb: ModuleType, linear: list[tuple[np.ndarray, np.ndarray]], current: str, output: str
+) -> tuple[list[onnx.NodeProto], list[onnx.TensorProto]]:
+    """The nodes and initializers of the network itself, from its (N, 5) input ``current`` to its (N, 3) unit
+    normals ``output``: per folded layer (``linear``, :func:`nlipscalib.learn.model.folded_layers`) a MatMul named
+    ``layer<k>`` and an Add, ReLU between layers, then the division by the L2 norm (at least 1e-8). The one copy of
+    the layout: the per-pixel export and the full-frame one (:mod:`.onnx_fullframe`) share it."""
+    nodes, weights = [], []
+    for k, (W, b) in enumerate(linear):
+        weights.append(_tensor(pb, W.T, f"W{k}"))
+        weights.append(_tensor(pb, b, f"b{k}"))
+        nodes.append(_node(pb, "MatMul", [current, f"W{k}"], [f"matmul{k}"], f"layer{k}"))
+        nodes.append(_node(pb, "Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], f"bias{k}"))
+        current = f"linear{k}"
+        if k < len(linear) - 1:
+            nodes.append(_node(pb, "Relu", [current], [f"relu{k}"], f"relu{k}"))
+            current = f"relu{k}"
+    weights.append(_tensor(pb, np.array([1e-8], np.float32), "min_norm"))
+    nodes += [
+        _node(pb, "ReduceL2", [current], ["norm"], "norm", keepdims=1, axes=[-1]),
+        _node(pb, "Max", ["norm", "min_norm"], ["norm_clamped"], "clamp"),
+        _node(pb, "Div", [current, "norm_clamped"], [output], "unit"),
+    ]
+    return nodes, weights
 
 
 def input_contract(model: LoadedModel) -> dict:

@@ -71,6 +71,26 @@ def kernel_radius(sigma_px: float) -> int:
     return int(math.ceil(3.0 * sigma_px)) if sigma_px > 0 else 0
 
 
+def gaussian_kernel(sigma_px: float) -> np.ndarray:
+    """(2 r + 1,) float32: the 1-D Gaussian of ``sigma_px`` (> 0) the prefilter convolves rows and columns with,
+    OpenCV's (``cv2.getGaussianKernel``, r = :func:`kernel_radius`): the torch path (:mod:`.fullframe`) and the
+    full-frame ONNX graph (:mod:`.onnx_fullframe`) use its weights, OpenCV's GaussianBlur makes them alike."""
+    cv2 = require("cv2", "opencv-python-headless", "Filtering the tri-colour image")
+    return cv2.getGaussianKernel(2 * kernel_radius(sigma_px) + 1, sigma_px, cv2.CV_32F).ravel()
+
+
+def bilateral_offsets(sigma_px: float) -> list[tuple[int, int, float]]:
+    """OpenCV's bilateral window of ``sigma_px``: each offset (dy, dx) within the kernel's radius (a disc) with its
+    spatial Gaussian weight; empty without a radius (a model trained unfiltered has no window)."""
+    r = kernel_radius(sigma_px)
+    return [
+        (dy, dx, float(np.exp(-(dy * dy + dx * dx) / (2 * sigma_px**2))))
+        for dy in range(-r, r + 1)
+        for dx in range(-r, r + 1)
+        if r and dy * dy + dx * dx <= r * r
+    ]
+
+
 class Prefilter:
     """The tri-colour low-pass of one sensor (its gel mask), ready for many frames.
 
@@ -123,6 +143,13 @@ class Prefilter:
             return self._edge_stopping(grown)[inside]
         out = self._blur(grown)[inside]
         return out / np.maximum(self._weight[rows, cols], np.float32(1e-6))[..., None]
+
+    def gel_weight(self) -> np.ndarray | None:
+        """(H, W) float32: what the Gaussian's sums of the gel's colours are divided by at each pixel (the blurred gel
+        mask, at least 1e-6); None without a Gaussian (no radius, or the bilateral filter)."""
+        if not self.radius or self.colour_sigma:
+            return None
+        return np.maximum(self._weight, np.float32(1e-6))
 
     def _edge_stopping(self, a: np.ndarray) -> np.ndarray:
         """OpenCV's bilateral filter of ``a`` (module docstring): a window's values equal the whole frame's there
