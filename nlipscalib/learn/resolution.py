@@ -137,7 +137,7 @@ def model_words(model: LoadedModel) -> ModelWords:
 
 @dataclass(frozen=True)
 class Steepness:
-    """A contact judged too small or steep for NLiPsNet (:func:`judge_steepness`).
+    """A contact judged too small or steep for the model's normals (:func:`judge_steepness`).
 
     Attributes
     ----------
