@@ -240,6 +240,14 @@ def _rest_calls(s):
             "decode must be True, False or 'background'",
             lambda: load_press(press, decode=3),
         ),
+        "load_press led_subset a string": (
+            "led_subset must be a sequence of LED indices (0-based integers), got str '0,2'",
+            lambda: load_press(press, led_subset="0,2"),
+        ),
+        "load_press led_subset of fractions": (
+            "led_subset must be a sequence of LED indices (0-based integers), got list [1.5]",
+            lambda: load_press(press, led_subset=[1.5]),
+        ),
         "load_reconstruction shape a string": (
             "shape must be (H, W) pixels",
             lambda: load_reconstruction(out, "64x48"),
@@ -426,6 +434,8 @@ CASES = {
         "SolverOptions max_iters a string",
         "SolverOptions smoothness a string",
         "load_press decode a number",
+        "load_press led_subset a string",
+        "load_press led_subset of fractions",
         "load_reconstruction shape a string",
         "build_dataset result_dir a number",
         "build_dataset progress a string",

@@ -160,7 +160,7 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
         # the frames' results went in among its images, exit 0 (`nlips capture`, `dataset` and `demo` refuse it too)
         raise ConfigError(
             f"{out}: is a press folder (it has {META_FILE}); write the results into another folder (a press's own "
-            "NLiPsNet result goes to PRESS/nlipsnet when no --out is given)"
+            "result goes to PRESS/nlipsnet, a lookup table's to PRESS/lut, when no --out is given)"
         )
     fill_defaults(args, {"every": 1})
     check_count("--every", args.every, minimum=1)
@@ -429,20 +429,23 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         "--full-frame",
         action="store_true",
         help="the network's normals on every gel pixel and depth over the whole gel, not only where the frame "
-        "changed (meant for a GPU: on a CPU about 10x slower than the default)",
+        "changed (meant for a GPU: on a CPU about 10x slower than the default; not for a lookup table, which runs on "
+        "the changed pixels)",
     )
 
 
 def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predictor:
-    """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``) for a stream;
-    its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what
-    the live sinks show)."""
+    """The NLiPsNet or lookup table of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``)
+    for a stream or still frames; its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with
+    ``normals`` and ``depth`` (what the live sinks show)."""
     from ..core.errors import ConfigError
 
     try:
         from ..learn.infer import Predictor, predictor_device
     except ModuleNotFoundError:
-        raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
+        raise ConfigError(
+            "--model needs nlipscalib.learn.infer (NLiPsNet and lookup tables), which this installation lacks"
+        ) from None
     predictor_device(args.device, args.backend, args.full_frame, flag=True)  # worded with the flags, not keywords
     predictor = Predictor(
         args.model,

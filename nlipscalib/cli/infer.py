@@ -1,4 +1,5 @@
-"""``nlips infer MODEL INPUT...``: normals, depth on the dome and point clouds from tri-colour frames with NLiPsNet.
+"""``nlips infer MODEL INPUT...``: normals, depth on the dome and point clouds from tri-colour frames with NLiPsNet
+(or a lookup table from ``nlips lut``, run alike: PRESS/lut/ in place of PRESS/nlipsnet/).
 
 Inputs are press folders (PRESS/nlipsnet/ in the reconstruction format), tri-colour PNG files or folders
 of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``), the
@@ -79,14 +80,17 @@ STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already s
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "infer",
-        help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a video or a camera",
-        description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format), "
+        help="NLiPsNet (or lookup-table) normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a "
+        "video or a camera",
+        description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format; "
+        "a lookup table from `nlips lut`, PRESS/lut/), "
         "on tri-colour frames stored as images (a file, several, or a folder of frames: 16-bit PNG as captured, or "
         "8-bit PNG/JPEG/TIFF/BMP with a warning that they are coarser, read as RGB like a video's frames), "
         "or on a stream: a video file, "
         "an image-sequence pattern (frames/img_%04d.png), a camera (--camera 0) or the emulated sensor "
         "(--emulate SCENE). Only pixels that differ from the calibration's reference frame go through the "
-        "network; depth integrates the normals on the dome. Prints frames per second and where the time goes. "
+        "network (or table); depth integrates the normals on the dome. Prints frames per second and where the time "
+        "goes. "
         "A press's or frame's result made from the same input with the same model file and options is kept (a "
         "re-run resumes; the summary counts them); others are inferred again, and the log says what changed.",
     )
@@ -606,7 +610,9 @@ class _StageTimes:
         call = stats.predict_s / stats.frames
         steps["other"] = max(call - sum(steps.values()), 0.0)
         per_frame = sum(steps.values())  # the call's mean time (its steps' sum, were "other" ever negative)
-        times = ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in steps.items())
+        # a table's "network" stage (its key in stream.json and report.json) is its lookup: said so
+        said = {"network": "table lookup"} if predictor.model.table is not None else {}
+        times = ", ".join(f"{said.get(k, k)} {1e3 * v:.1f} ms" for k, v in steps.items())
         rate = f"{1 / per_frame:.1f}" if per_frame > 0 else "inf"
         return (
             f"{predictor.model.describe()} ({where}), mean per frame: {times} = {1e3 * per_frame:.1f} ms = {rate} "
@@ -671,12 +677,16 @@ def _write_stream_report(
     from pathlib import Path
 
     from ..core.atomic import write_bytes
+    from ..learn.infer import model_shape
 
     report = {
         "input": name,
         "model": str(predictor.model.path.resolve()),
+        # what the model is, as a result's report.json says it: "nlipsnet" and its hidden layers, or "lut" and its
+        # table; a stream.json from before s39-lutwords has no "method" and "hidden" [] for a table
+        "method": predictor.model.method,
         "backend": predictor.backend,
-        "hidden": list(predictor.model.hidden),  # [] for a lookup table
+        **model_shape(predictor.model),
         "frames": stats.frames,
         "dropped": stats.dropped,  # read while the LED board had reset (device.live_leds.ResetWatch)
         "wall_s": stats.seconds,

@@ -1,4 +1,5 @@
-"""``nlips live``: stream tri-colour frames into a trained NLiPsNet; show or save normal and depth maps.
+"""``nlips live``: stream tri-colour frames into a trained NLiPsNet or a lookup table; show or save normal and depth
+maps.
 
 Sources: a camera (with the LED board lit in the tri-colour pattern), a folder or video of recorded
 tri-colour frames, or the emulated sensor (``--emulate SCENE``: the twin pressing its scripted presses
@@ -57,9 +58,10 @@ stream cannot continue where it stopped."""
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "live",
-        help="live normal and depth maps from tri-colour frames (NLiPsNet)",
+        help="live normal and depth maps from tri-colour frames (NLiPsNet, or a lookup table)",
         description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
-        "or image folder, or --emulate SCENE) through NLiPsNet (--model) or your own --predictor: normals, depth "
+        "or image folder, or --emulate SCENE) through a model file (--model: NLiPsNet from `nlips train`, or a lookup "
+        "table from `nlips lut`) or your own --predictor: normals, depth "
         "integrated on the dome, frames per second; shown in a window (on a display, with an OpenCV built with a GUI: "
         "opencv-python in place of the opencv-python-headless installed with nlipscalib), and/or saved with --out. "
         "Warns when the frames stop looking like the model's calibration.",
@@ -81,7 +83,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="auto",
         choices=("auto", "torch", "onnx", "onnx-int8"),
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch; an "
-        ".onnx that is not the model's own export is refused)",
+        ".onnx that is not the model's own export is refused; a lookup table runs on NumPy: leave it at auto)",
     )
     p.add_argument(
         "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"
@@ -240,7 +242,9 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
 
     if bool(args.model) == bool(args.predictor):
-        raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
+        raise ConfigError(
+            "give exactly one of --model FILE (NLiPsNet's or a lookup table's) or --predictor module:function"
+        )
     if args.model and args.camera_response:
         raise ConfigError(
             f"--camera-response is for --predictor: the model {args.model} records its calibration's camera "

@@ -26,6 +26,7 @@ import contextlib
 import dataclasses
 import functools
 import os
+import reprlib
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -454,6 +455,7 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
     check_kind(folder, PATH, "folder", "a press folder's path (str or Path)")
     if not any(decode is mode for mode in (True, False)) and decode != "background":
         raise ConfigError(f"decode must be True, False or 'background', got {decode!r}")
+    subset = None if led_subset is None else _subset_indices(led_subset)  # its kind before any file is read
     folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)
@@ -461,7 +463,7 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
     names = images["leds"]
     if len(names) != len(leds):
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
-    keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
+    keep = range(len(leds)) if subset is None else _check_subset(subset, len(leds), folder)
     stored = _read_stored(folder, [images["dark"]] + [names[i] for i in keep], camera)
     curve = response.tone_curve()  # undone at decoding, before anything subtracts the dark frame
     dark = StoredImages(*stored[0], camera, stacked=False, named=decode is False, tone_curve=curve)
@@ -536,25 +538,37 @@ def _check_image(img: np.ndarray, shape: tuple[int, int], name: str) -> None:
         raise CaptureError(f"{name}: expected ({shape[0]}, {shape[1]}, 3) uint16, got {img.shape} {img.dtype}")
 
 
-def _check_subset(subset: Sequence[int], n: int, folder: Path) -> list[int]:
-    given = list(subset) if not isinstance(subset, (str, bytes)) and np.iterable(subset) else None
+def _subset_indices(led_subset: object) -> list[int]:
+    """``load_press``'s ``led_subset`` as a list of ints; ShapeError naming the argument, as the API's kind checks
+    (``core.errors.check_kind``) do, unless it is a sequence of whole numbers (a string gave "invalid literal for
+    int()", and 1.5 was taken for LED index 1 without a word)."""
+    given = list(led_subset) if not isinstance(led_subset, (str, bytes)) and np.iterable(led_subset) else None
     if given is None or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in given):
-        # a string gave "invalid literal for int()", and 1.5 was taken for LED 1 without a word
-        raise CaptureError(f"{folder}: LED subset must list LED indices (0-based integers), got {subset!r}")
-    subset = [int(i) for i in given]
-    bad = [i for i in subset if not 0 <= i < n]
-    twice = sorted({i + 1 for i in subset if subset.count(i) > 1})
-    if bad or twice or not subset:
-        # which LED is wrong, counting from 1 as the user typed them ("indices must be unique" named none)
-        why = (
-            "no LED"
-            if not subset
-            else f"LED {', '.join(str(i + 1) for i in bad)} out of range 1..{n}"
-            if bad
-            else f"LED {', '.join(map(str, twice))} named twice"
+        raise ShapeError(
+            f"led_subset must be a sequence of LED indices (0-based integers), got {type(led_subset).__name__} "
+            f"{reprlib.repr(led_subset)}"
         )
+    return [int(i) for i in given]
+
+
+def subset_problem(subset: Sequence[int], n: int) -> str | None:
+    """What is wrong with the 0-based LED indices ``subset`` of a capture of ``n`` LEDs, in words counting the LEDs
+    from 1 as the user typed them ("LED 13 out of range 1..12", "LED 1 named twice", "no LED"); None when nothing.
+    Why: "indices must be unique" named no LED (s34-walk)."""
+    bad = [i for i in subset if not 0 <= i < n]
+    twice = sorted({i + 1 for i in subset if list(subset).count(i) > 1})
+    if not subset:
+        return "no LED"
+    if bad:
+        return f"LED {', '.join(str(i + 1) for i in bad)} out of range 1..{n}"
+    return f"LED {', '.join(map(str, twice))} named twice" if twice else None
+
+
+def _check_subset(subset: list[int], n: int, folder: Path) -> list[int]:
+    """``subset`` unless :func:`subset_problem` finds one: CaptureError naming the folder and the argument."""
+    if why := subset_problem(subset, n):
         raise CaptureError(
-            f"{folder}: LED subset {subset} (0-based; LEDs {[i + 1 for i in subset]} counting from 1) "
-            f"is invalid for {n} LEDs: {why}"
+            f"{folder}: led_subset={subset} (0-based; LEDs {[i + 1 for i in subset]} counting from 1) "
+            f"is invalid for its {n} LEDs: {why}"
         )
     return subset

@@ -174,7 +174,9 @@ than the solve on such contacts (s27-unusual: 5.6 against 2.4 deg on the 1 mm sp
 32-32 net trained 5 min on /tmp/keep/train50 (640x480; benchmarks/RESULTS.md, s28-tinynet): 1-2 mm spheres
 0.1-0.5 mm deep 0.59-1.28 deg/px, contact AAE 3.2-5.7 deg; 15 normal and unusual presses 0.05-0.17 deg/px and the
 6 mm sphere 0.05 mm deep 0.29 (1.3 deg), 0.8-1.3 deg (2.4-6.8 where the relief is steep or at the gel's edge,
-another cause). Near the geometric middle of 0.29 and 0.59. The tests' 96x72 twin's 6 mm sphere: 0.55 (warned)."""
+another cause). Near the geometric middle of 0.29 and 0.59. The tests' 96x72 twin's 6 mm sphere: 0.55 (warned).
+A lookup table's results (``nlips lut``: fitted on the same smoothed labels and colours) are judged by it too, not
+measured for a table; their warning names the table's own step (``learn.resolution.model_words``)."""
 UNCALIBRATED_STEEPNESS_FACTOR = 1.5
 """``nlips infer`` warns that a frame's NLiPsNet normals are not to be trusted when its contact (the change rule's
 largest patch, ``learn.change``) turns its predicted normals by more degrees per pixel of its equivalent diameter

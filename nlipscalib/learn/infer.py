@@ -568,12 +568,13 @@ def drift_warning(frame: Frame, where: str | Path) -> str | None:
     """Why ``frame``'s result drifted when the frame is otherwise like the reference (:func:`mismatch_warning`
     says why when it is not): a colour's median on the unchanged gel off the reference's by more than
     :data:`~nlipscalib.core.tolerances.FRAME_CHANNEL_DRIFT` (an aged LED group, a drifted exposure or gain);
-    None otherwise. The network reads colours as they were at the calibration: 5 % less red cost 3 deg."""
+    None otherwise. The model (a network or a lookup table) reads colours as they were at the calibration: 5 % less
+    red cost the network 3 deg."""
     if not _drifted(frame.channels):
         return None
     return (
         f"{where}: {_channel_words(frame.channels)} (more than {100 * FRAME_CHANNEL_DRIFT:.3g} % off), so the "
-        f"network reads its colours as other normals and the result drifts by degrees: {REFRESH_REMEDY}"
+        f"model reads its colours as other normals and the result drifts by degrees: {REFRESH_REMEDY}"
     )
 
 
@@ -619,7 +620,7 @@ def to_reconstruction(
             "device": str(predictor.device or "cpu"),
             "full_frame": predictor.full_frame,
         }
-        | _model_shape(predictor.model)
+        | model_shape(predictor.model)
         | {
             "labels": predictor.model.info.get("labels"),
             "source": source,
@@ -630,9 +631,9 @@ def to_reconstruction(
     )
 
 
-def _model_shape(model: LoadedModel) -> dict:
-    """A result's record of what the model is: an NLiPsNet's ``hidden`` layer widths, a lookup table's ``table``
-    (``bins`` levels per channel, ``cells`` regions per side)."""
+def model_shape(model: LoadedModel) -> dict:
+    """A result's (report.json) and a stream's (stream.json) record of what the model is: an NLiPsNet's ``hidden``
+    layer widths, a lookup table's ``table`` (``bins`` levels per channel, ``cells`` regions per side)."""
     if model.table is not None:
         return {"table": {"bins": model.table.bins, "cells": model.table.cells}}
     return {"hidden": list(model.hidden)}

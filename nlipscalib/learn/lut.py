@@ -16,6 +16,8 @@ a network, through ``learn.infer.Predictor``.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -119,6 +121,35 @@ class LookupTable:
         pooled = self._nearest(-1, grid)
         present = {int(r) for r in self.tables}
         return np.stack([self._nearest(r, grid) if r in present else pooled for r in range(self.cells**2)])
+
+    @functools.cached_property
+    def bin_step_deg(self) -> float:
+        """What the table's bins resolve: the median angle, degrees, between the normals of two filled bins of one
+        region that are neighbours (one level apart in one colour channel); NaN when no two filled bins are.
+
+        Why: a table answers a colour with its bin's mean normal, so its normals come in steps of this (a 640x480
+        twin calibration's 16 levels, 8x8 regions: 3.5 deg, benchmarks/RESULTS.md s39-lutwords); the steepness
+        warning names it for a table's results (:mod:`.resolution`). The pooled table is left out: a region's own
+        bins are what its pixels read."""
+        regions = [r for r in self.tables if r != -1]
+        if not regions:
+            return math.nan
+        region = np.concatenate([np.full(len(self.tables[r][0]), r, np.int64) for r in regions])
+        keys = np.concatenate([self.tables[r][0] for r in regions]).astype(np.int64)
+        normals = np.concatenate([self.tables[r][1] for r in regions])
+        flat = ((region * self.bins + keys[:, 0]) * self.bins + keys[:, 1]) * self.bins + keys[:, 2]
+        order = np.argsort(flat)
+        ordered = flat[order]
+        angles = []
+        for channel, stride in enumerate((self.bins**2, self.bins, 1)):
+            below = keys[:, channel] + 1 < self.bins  # a neighbour one level up lies in the same region
+            wanted = flat[below] + stride
+            at = np.minimum(np.searchsorted(ordered, wanted), len(ordered) - 1)
+            found = ordered[at] == wanted
+            cosine = np.sum(normals[below][found] * normals[order[at[found]]], axis=-1)
+            angles.append(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+        angles = np.concatenate(angles)
+        return float(np.median(angles)) if angles.size else math.nan
 
     # ------------------------------------------------------------------ file entry
     def arrays(self) -> dict:

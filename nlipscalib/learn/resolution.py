@@ -1,4 +1,5 @@
-"""Whether a frame's contact is like the contacts NLiPsNet was calibrated on: small and steep ones are not trusted.
+"""Whether a frame's contact is like the contacts a model (NLiPsNet, or a lookup table: ``learn.lut``) was calibrated
+on: small and steep ones are not trusted.
 
 NLiPsNet maps each pixel's filtered colour to a normal; it learns the solve's labels, which are smoothed over a
 few pixels whatever the dent's size (``core.steepness``), and the colours are low-pass filtered too
@@ -8,7 +9,9 @@ its slopes flattened by several degrees (s27-unusual: the fast net 5.58 deg on a
 and how far its labels tilt there; at inference, :func:`steepness_warning` compares each frame's changed region and
 predicted normals with that and with the solve's rule, measured on the changed region
 (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`).
-Both use the change rule's region (:mod:`.change`), the same at training and at inference.
+Both use the change rule's region (:mod:`.change`), the same at training and at inference. A lookup table's results
+are judged alike (it is fitted on the same smoothed labels and colours) and worded as its own (:func:`model_words`):
+a table resolves what its bins resolve.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from .change import DILATE_BLOCKS
 if TYPE_CHECKING:  # named in hints only
     from .dataset import CalibrationDataset
     from .infer import Frame, Predictor
+    from .model import LoadedModel
 
 RIM_PX = 2 * DILATE_BLOCKS
 """Pixels the change rule grows its changed region by (:data:`.change.DILATE_BLOCKS` blocks of 2x2), taken off again
@@ -94,26 +98,66 @@ def recorded_steepness(info: dict) -> float | None:
 
 
 @dataclass(frozen=True)
+class ModelWords:
+    """How a steepness warning names the model whose normals it judges (:func:`model_words`).
+
+    Attributes
+    ----------
+    resolves : str -- what resolves :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`, after "the ~0.4 deg/px".
+    normals : str -- what the model's normals are in such a contact.
+    """
+
+    resolves: str
+    normals: str
+
+
+NETWORK_WORDS = ModelWords("NLiPsNet resolves", "NLiPsNet's normals there are smoothed")
+"""A network's words (and those of a caller that names no model)."""
+
+
+def model_words(model: LoadedModel) -> ModelWords:
+    """The words of a steepness warning about ``model``'s normals: NLiPsNet's, or a lookup table's (``learn.lut``).
+
+    Why: a table is fitted on the network's smoothed labels and prefiltered colours, so the limit holds for it (it
+    was measured with a net: :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`), but its normals are its bins'
+    means: it resolves what its bins resolve, the step between neighbouring bins' normals
+    (:attr:`.lut.LookupTable.bin_step_deg`), said with its levels; a warning that named NLiPsNet for a table's
+    results (s38-lutcli) sent the user to a network they had not run."""
+    table = getattr(model, "table", None)
+    if table is None:
+        return NETWORK_WORDS
+    step = table.bin_step_deg
+    bins = f"{table.bins} levels per colour channel"
+    apart = f"its neighbouring bins' normals ~{step:.1f} deg apart, {bins}" if math.isfinite(step) else f"its {bins}"
+    return ModelWords(
+        "the calibration's smoothed colours resolve",
+        f"the lookup table resolves what its bins resolve ({apart}), and its normals there are smoothed",
+    )
+
+
+@dataclass(frozen=True)
 class Steepness:
-    """A contact judged too small or steep for NLiPsNet (:func:`judge_steepness`).
+    """A contact judged too small or steep for the model's normals (:func:`judge_steepness`).
 
     Attributes
     ----------
     diameter : float, px -- the contact's equivalent diameter (``core.steepness.patch_steepness``).
     tilt : float, degrees -- its predicted normals' tilt from the undeformed surface (75th percentile).
     limits : tuple of str -- the limits it is beyond, in words.
+    words : :class:`ModelWords` -- the model whose normals these are.
     """
 
     diameter: float
     tilt: float
     limits: tuple[str, ...]
+    words: ModelWords = NETWORK_WORDS
 
     def line(self, where: str | Path) -> str:
         """The warning for the frame named ``where``."""
         per_px = self.tilt / self.diameter
         return (
             f"{where}: contact about {self.diameter:.0f} px across with its normals tilted ~{self.tilt:.0f} deg "
-            f"({per_px:.2f} deg/px): beyond {' and '.join(self.limits)}; NLiPsNet's normals there are smoothed "
+            f"({per_px:.2f} deg/px): beyond {' and '.join(self.limits)}; {self.words.normals} "
             f"(expect several degrees of error); capture at a higher resolution, press with a larger indenter, or "
             f"calibrate with presses as small and steep"
         )
@@ -212,11 +256,12 @@ def judge_steepness(
     reference_normals: np.ndarray,
     calibrated_per_px: float | None,
     extent: ContactExtent | None = None,
+    words: ModelWords = NETWORK_WORDS,
 ) -> Steepness | None:
     """The frame's contact when its normals are not to be trusted, or None.
 
     The frame's changed region's largest patch and its predicted normals' tilt
-    (:func:`nlipscalib.core.steepness.patch_steepness`) turn by more degrees per pixel than NLiPsNet resolves
+    (:func:`nlipscalib.core.steepness.patch_steepness`) turn by more degrees per pixel than the model resolves
     (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`), or than the steepest calibration press did by
     :data:`~nlipscalib.core.tolerances.UNCALIBRATED_STEEPNESS_FACTOR` (``calibrated_per_px``; None: not checked).
 
@@ -227,6 +272,7 @@ def judge_steepness(
     reference_normals : (H, W, 3) float32, unit, camera frame -- the undeformed surface's.
     calibrated_per_px : deg/px -- :func:`recorded_steepness` of the model's info.
     extent : :func:`contact_extent` of ``changed`` when known already.
+    words : :func:`model_words` of the model that predicted ``normals``.
     """
     extent = extent or contact_extent(changed)
     if extent is None:
@@ -240,10 +286,10 @@ def judge_steepness(
     per_px = tilt / diameter
     limits = []
     if per_px > tolerances.CHANGED_TILT_PER_PX:
-        limits.append(f"the ~{tolerances.CHANGED_TILT_PER_PX:g} deg/px NLiPsNet resolves")
+        limits.append(f"the ~{tolerances.CHANGED_TILT_PER_PX:g} deg/px {words.resolves}")
     if calibrated_per_px is not None and per_px > tolerances.UNCALIBRATED_STEEPNESS_FACTOR * calibrated_per_px:
         limits.append(f"the {calibrated_per_px:.2f} deg/px of the steepest calibration press")
-    return Steepness(diameter, tilt, tuple(limits)) if limits else None
+    return Steepness(diameter, tilt, tuple(limits), words) if limits else None
 
 
 def steepness_warning(
@@ -252,10 +298,11 @@ def steepness_warning(
     reference_normals: np.ndarray,
     where: str | Path,
     calibrated_per_px: float | None,
+    words: ModelWords = NETWORK_WORDS,
 ) -> str | None:
     """Why a frame's normals in its contact are not to be trusted (:func:`judge_steepness`), or None; ``where``
-    names the frame in the line."""
-    judged = judge_steepness(changed, normals, reference_normals, calibrated_per_px)
+    names the frame in the line, ``words`` the model (:func:`model_words`)."""
+    judged = judge_steepness(changed, normals, reference_normals, calibrated_per_px, words=words)
     return None if judged is None else judged.line(where)
 
 
@@ -276,7 +323,8 @@ def frame_warning(predictor: Predictor, frame: Frame, where: str | Path) -> str 
     if contact is None:
         return None
     calibrated = recorded_steepness(predictor.model.info)
-    return steepness_warning(contact, frame.normals, predictor.ref_normals, where, calibrated)
+    words = model_words(predictor.model)
+    return steepness_warning(contact, frame.normals, predictor.ref_normals, where, calibrated, words)
 
 
 class StreamSteepness:
@@ -325,7 +373,8 @@ class StreamSteepness:
             self._reused += 1
         else:
             calibrated = recorded_steepness(self.predictor.model.info)
-            self._verdict = judge_steepness(contact, frame.normals, ref, calibrated, extent)
+            words = model_words(self.predictor.model)
+            self._verdict = judge_steepness(contact, frame.normals, ref, calibrated, extent, words)
             self._extent, self._reused = extent, 0
             if not (math.isfinite(bend) and bend_step(extent) == self._step):
                 self._step = bend_step(extent)

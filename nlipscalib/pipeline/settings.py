@@ -143,7 +143,7 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
     reference captured by the same sensor; else ConfigError or CaptureError naming what does not fit (``nlips
     calibrate --leds`` checks its LED file with it before any solving)."""
-    from ..core.capture import read_optics
+    from ..core.capture import read_optics, subset_problem
     from ..core.press_meta import META_FILE, read_meta
     from ..solver.press_checks import check_roi, check_undeformed
 
@@ -152,8 +152,9 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     if isinstance(settings.roi, tuple) and isinstance(camera, dict) and "width" in camera and "height" in camera:
         check_roi(settings.roi, int(camera["width"]), int(camera["height"]))
     n = len(leds)
-    if settings.led_subset is not None and not all(0 <= i < n for i in settings.led_subset):
-        raise ConfigError(f"leds {[i + 1 for i in settings.led_subset]}: {folder / META_FILE} has LEDs 1..{n}")
+    if settings.led_subset is not None and (why := subset_problem(settings.led_subset, n)):
+        # the argument the caller gave (`leds`, --leds), 1-based as typed: load_press's own check names led_subset
+        raise ConfigError(f"leds {[i + 1 for i in settings.led_subset]}: {folder / META_FILE} has LEDs 1..{n}: {why}")
     used = len(settings.led_subset) if settings.led_subset is not None else n
     if settings.led_subset is not None and used < tolerances.MIN_LEDS_PER_PIXEL:  # "only 2 LED images are lit"
         raise ConfigError(

@@ -414,9 +414,14 @@ def test_nan_in_reference_normals_is_rejected(tmp_path):
 
 
 def test_bad_led_subset(tmp_path):
+    """The argument named as the caller wrote it (``led_subset=``), the LED counted from 1 as a user reads it."""
     folder = _press(tmp_path / "p")
-    with pytest.raises(CaptureError, match="subset"):
+    with pytest.raises(CaptureError) as raised:
         load_press(folder, led_subset=[0, 5])
+    assert str(raised.value).startswith(f"{folder}: led_subset=[0, 5] (0-based; LEDs [1, 6] counting from 1)")
+    assert str(raised.value).endswith("is invalid for its 3 LEDs: LED 6 out of range 1..3")
+    with pytest.raises(CaptureError, match=r"led_subset=\[2, 2\] .*: LED 3 named twice$"):
+        load_press(folder, led_subset=[2, 2])
 
 
 def _edit_meta(folder, change):
@@ -680,12 +685,16 @@ def test_led_gains_rescale_each_led_image_above_the_dark_frame_and_keep_saturate
 def test_an_led_subset_of_anything_but_led_indices_is_one_clear_error(tmp_path):
     """`load_press(folder, led_subset="0,2")` failed on "invalid literal for int() with base 10: ','", and
     `led_subset=[1.5]` loaded LED 2 (index 1) without a word."""
-    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.errors import ShapeError
 
     folder = _press(tmp_path / "p1")
-    for subset in ("0,2", [1.5], [True, 2], 3):
-        with pytest.raises(CaptureError, match=r"LED subset must list LED indices \(0-based integers\), got"):
-            load_press(folder, led_subset=subset)
+    for subset, got in (("0,2", "str '0,2'"), ([1.5], "list [1.5]"), ([True, 2], "list [True, 2]"), (3, "int 3")):
+        # named as the API's other kind checks name their argument (core.errors.check_kind), before any file is read
+        said = f"led_subset must be a sequence of LED indices (0-based integers), got {got}"
+        for where in (folder, tmp_path / "no such press"):
+            with pytest.raises(ShapeError) as raised:
+                load_press(where, led_subset=subset)
+            assert str(raised.value) == said
     assert len(load_press(folder, led_subset=np.array([0, 2])).leds) == 2  # NumPy's integers are indices too
 
 

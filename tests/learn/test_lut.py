@@ -265,3 +265,53 @@ def test_the_kept_answers_are_the_searched_ones(monkeypatch):
     assert table._answers is not None
     monkeypatch.setattr(lut, "DENSE_ANSWERS", 0)
     np.testing.assert_array_equal(table.predict(test_pixel, test_rgb), kept)
+
+
+def test_the_bin_step_is_the_median_angle_between_neighbouring_filled_bins():
+    """Known answer: region 0's bins (0,0,0), (1,0,0), (2,0,0), (0,1,0) tilted 0, 2, 6, 10 deg: neighbours 2, 4 and
+    10 deg apart, median 4. Not neighbours (each would move the median to 7): (3,1,0), diagonal to (2,0,0); region 0's
+    last red level (7,0,0) and region 1's first, next to it in the flat index; the pooled table's two bins."""
+    keys = [[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [3, 1, 0], [7, 0, 0], [0, 0, 0], [0, 0, 0], [1, 0, 0]]
+    tilt = np.radians([0, 2, 6, 10, 30, 50, 0, 0, 60])
+    arrays = {
+        "bins": 8,
+        "cells": 2,
+        "lo": np.zeros(3),
+        "hi": np.ones(3),
+        "region": np.array([0, 0, 0, 0, 0, 0, 1, -1, -1], np.int32),
+        "keys": np.array(keys, np.int16),
+        "normals": np.stack([np.sin(tilt), np.zeros_like(tilt), -np.cos(tilt)], -1).astype(np.float32),
+    }
+    reference = np.zeros((H, W, 3), np.float32)
+    assert LookupTable.from_arrays(arrays, reference).bin_step_deg == pytest.approx(4.0, abs=1e-4)
+    arrays["keys"][1], arrays["keys"][3] = [4, 4, 4], [6, 6, 6]  # no two bins of one region side by side
+    assert np.isnan(LookupTable.from_arrays(arrays, reference).bin_step_deg)
+
+
+def test_a_tables_stream_and_live_name_the_table_not_nlipsnet(tiny, tmp_path, capsys):
+    """A table's stream wrote `"hidden": []` in stream.json and its stage line a "network" stage; `nlips live --model
+    TABLE` and the help texts spoke of NLiPsNet alone (s38-lutcli)."""
+    from tests.learn.test_resume import NAMES
+
+    table_file, root = tiny
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, name in enumerate(NAMES):
+        shutil.copy(root / name / "tricolor.png", frames / f"f_{i:04d}.png")
+    out = tmp_path / "stream"
+    assert main(["--no-progress", "infer", str(table_file), str(frames / "f_%04d.png"), "--out", str(out)]) == 0
+    said = capsys.readouterr().err
+    assert "lookup table 16 levels, 8x8 regions (lut), mean per frame: " in said and "table lookup " in said
+    assert "network" not in said and "NLiPsNet" not in said, said
+    report = json.loads((out / "stream.json").read_text(encoding="utf-8"))
+    assert report["method"] == "lut" and report["table"] == {"bins": 16, "cells": 8} and "hidden" not in report
+    assert report["model"] == str(table_file.resolve()) and report["backend"] == "lut" and report["frames"] == 3
+    assert "network" in report["median_stage_s"]  # the stage's key, as a network's, for readers of both
+
+    assert main(["--no-progress", "live", "--model", str(table_file), "--camera", str(frames), "--no-window"]) == 0
+    said = capsys.readouterr().err
+    assert "3 frames in" in said and "NLiPsNet" not in said and "network" not in said, said
+    for command in ("live", "infer"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert "lookup table" in capsys.readouterr().out

@@ -156,3 +156,78 @@ def test_the_whole_frame_path_warns_as_the_changed_pixel_path(trained, twin_pres
             watch(stored)
         watch.report()
     assert caplog.records[-1].getMessage().startswith("2 of 2 frames had a contact too small")
+
+
+@pytest.fixture(scope="module")
+def table(calib, tmp_path_factory):
+    """`nlips lut` on the twin's calibration, HELD_OUT left out (as the trained net's)."""
+    from nlipscalib.cli import main
+
+    from .conftest import HELD_OUT
+
+    out = tmp_path_factory.mktemp("resolution_lut") / "lut.pt"
+    assert main(["--no-progress", "lut", str(calib.folder), "--out", str(out), "--exclude", HELD_OUT]) == 0
+    return out
+
+
+def test_a_tables_results_are_warned_about_in_its_own_words(table, twin_presses, tmp_path, caplog, monkeypatch):
+    """The warning named NLiPsNet for a lookup table's results (s38-lutcli): the limit is said without it, and the
+    table by what its bins resolve (its neighbouring bins' step, its levels), by `nlips infer` and by a stream."""
+    import re
+
+    from nlipscalib.cli import main
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.watch import MismatchWatch
+
+    from .conftest import HELD_OUT
+
+    press = twin_presses / HELD_OUT
+    monkeypatch.setattr(tolerances, "CHANGED_TILT_PER_PX", 0.05)  # below the table's own contact: the rule speaks
+    with caplog.at_level(logging.WARNING):
+        assert main(["--no-progress", "infer", str(table), str(press), "--out", str(tmp_path / "a")]) == 0
+    (line,) = [r.getMessage() for r in caplog.records if "contact about" in r.getMessage()]
+    step = load_model(table).table.bin_step_deg
+    assert 0 < step < 90
+    assert "beyond the ~0.05 deg/px the calibration's smoothed colours resolve" in line, line
+    assert (
+        f"; the lookup table resolves what its bins resolve (its neighbouring bins' normals ~{step:.1f} deg apart, "
+        "16 levels per colour channel), and its normals there are smoothed (expect several degrees" in line
+    ), line
+    assert "NLiPsNet" not in line and re.match(rf"{re.escape(str(press))}: contact about \d+ px", line)
+
+    caplog.clear()
+    watch = MismatchWatch(Predictor(table, backend="auto", depth=False), "camera 0")
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.learn.watch"):
+        watch(load_press(press).tricolor)
+    first = caplog.records[0].getMessage()
+    assert first.startswith("camera 0 frame 0: contact about") and "what its bins resolve" in first, first
+    assert "NLiPsNet" not in first
+
+
+def test_a_network_and_a_table_without_neighbouring_bins_are_named_so():
+    """What names which: a network (or a caller naming none) NLiPsNet; a table whose filled bins are never
+    neighbours has no step to say, only its levels."""
+    from types import SimpleNamespace
+
+    from nlipscalib.learn.lut import LookupTable
+    from nlipscalib.learn.resolution import NETWORK_WORDS, model_words
+
+    assert model_words(SimpleNamespace(table=None)) == NETWORK_WORDS
+    changed, normals, reference = _dent(9, 30)
+    assert "NLiPsNet's normals there are smoothed" in steepness_warning(changed, normals, reference, "f", None)
+    keys = np.array([[0, 0, 0], [2, 2, 2], [0, 0, 0]], np.int16)  # two regions' lone bins and the pooled one
+    arrays = {
+        "bins": 4,
+        "cells": 2,
+        "lo": np.zeros(3),
+        "hi": np.ones(3),
+        "region": np.array([0, 0, -1], np.int32),
+        "keys": keys,
+        "normals": np.array([[0, 0, -1.0]] * 3, np.float32),
+    }
+    lone = LookupTable.from_arrays(arrays, np.zeros((8, 8, 3), np.float32))
+    words = model_words(SimpleNamespace(table=lone))
+    assert "(its 4 levels per colour channel)" in words.normals and "deg apart" not in words.normals
+    why = steepness_warning(changed, normals, reference, "f", None, words)
+    assert "deg/px the calibration's smoothed colours resolve;" in why and "NLiPsNet" not in why

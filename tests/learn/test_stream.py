@@ -57,6 +57,9 @@ def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twi
     assert expected.changed.sum() > 0  # the held-out press went through the network
     report = json.loads((out / "stream.json").read_text(encoding="utf-8"))
     assert report["frames"] == 3 and report["fps"] > 0 and set(report["median_stage_s"]) >= {"network", "integrate"}
+    # what the model is (since s39-lutwords), as a result's report.json says it: a table's has "table" in its place
+    assert report["method"] == "nlipsnet" and report["hidden"] == list(predictor.model.hidden) != []
+    assert "table" not in report
 
 
 def test_max_frames_and_every(trained, video, tmp_path, capsys):
