@@ -63,11 +63,12 @@ OUTLINE_HOLD_MIN_SHARE = 0.02
 Why: the held depth pins the depth level where it lies. A ``--roi auto`` box whose corner reached only the rings inside
 the outline (the flat pad's sphere: none of the outline in its 354-pixel border, 5 pixels of the next ring and 187 of
 the taper held) pinned the level at that corner against the design LEDs' level (0.7 % off) and the box bent to it:
-contact 0.874 -> 0.945 deg, whole gel 0.891 -> 0.963. Over 27 presses' auto boxes (s39-outline) every share from
-0.068 up held with gains where the box reaches a dent at the outline (the wide view's sphere at polar 60, 14 of 206:
-whole gel 3.099 -> 2.742 deg with the design LEDs, 1.421 -> 1.256 with disks); 2 % (a 354-pixel border's 7) lies
-between none and that. What no share separates: the flat pad's sphere with the design LEDs loses contact AAE held at
-every share measured, 0.085-0.355 (+0.05-0.10 deg; its disks gain): that follows the LED model, not the geometry."""
+contact 0.874 -> 0.945 deg, whole gel 0.891 -> 0.963. Over 21 presses' auto boxes (42 solves, s39-outline) every
+share from the smallest met, 0.043, up held with gains where the box reaches a dent at the outline (the wide view's
+sphere at polar 57, 9 of 212: whole gel 2.834 -> 2.018 deg unheld -> held with the design LEDs, 1.397 -> 1.066 with
+disks); 2 % (7 of a 354-pixel border) lies between none and that. What no share separates: the flat pad's sphere
+with the design LEDs loses contact AAE held at every share met, 0.085-0.355 (+0.05-0.10 deg; its disks lose none):
+that follows the LED model's level, not the geometry."""
 
 
 def anchor_weights(
