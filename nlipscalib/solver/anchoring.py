@@ -14,7 +14,7 @@ import numpy as np
 from ..core import tolerances
 from .contact import ContactMap
 from .nlips import SolveResult
-from .outline import outline_rings
+from .outline import gel_outline, outline_rings
 
 ANCHOR_MIN_FRACTION = 0.02
 """Anchoring is off (weak evidence) when fewer than this fraction of the gel's pixels fit the undeformed model at noise
@@ -38,14 +38,37 @@ pixel's normal is its depth's slope to its neighbours, and the outline's inner n
 The same solves with the outline alone held: outline 0.87 / 1.13 deg, next ring 1.10 / 2.03, whole gel 0.682 / 1.947;
 with two rings 0.47 / 0.43, 0.35 / 0.62, 0.644 / 1.890 (base 1.74 / 4.17, 1.33 / 3.92, 0.713 / 2.038)."""
 
-OUTLINE_HOLD_TAPER = 4
-"""Rings inside the :data:`OUTLINE_HOLD_WIDTH` whose anchored pixels are held a decade less a ring further in
-(1e4, 1e3, 1e2, 1e1 x an anchor), down to an anchor's weight. Why: a hold that stepped from 1e5 to 1 x an anchor made
-the first ring beyond it take up all the disagreement between the held depth and the data's -- the rim band's
-bounce light (1.9x its direct light at ring 2, 1.7x at ring 3), a design-LED solve's rim bulge (+33 um at rings
-3-4), the flank of a dent that reaches the outline (320x240 ``nlipstac_wide``, a cube at polar 70, disks: its
-contact's pixels in rings 3-4 9.84 -> 12.46 deg with the step); tapered, the whole gel 1.099 -> 1.004 deg, those
-pixels 9.57 (benchmarks/RESULTS.md, s38-outline34)."""
+OUTLINE_HOLD_TAPER = 6
+"""Rings inside the :data:`OUTLINE_HOLD_WIDTH` whose anchored pixels are held :data:`OUTLINE_HOLD_TAPER_STEP` times
+less a ring further in (2e4, 4e3, 800, 160, 32, 6.4 x an anchor), down to near an anchor's weight. Why: a hold that
+stepped from 1e5 to 1 x an anchor made the first ring beyond it take up all the disagreement between the held depth
+and the data's -- the rim band's bounce light (1.9x its direct light at ring 2, 1.7x at ring 3), a design-LED solve's
+rim bulge (+33 um at rings 3-4), the flank of a dent that reaches the outline (320x240 ``nlipstac_wide``, a cube at
+polar 70, disks: its contact's pixels in rings 3-4 9.84 -> 12.46 deg with the step, 9.57 tapered a decade a ring over
+4 rings; benchmarks/RESULTS.md, s38-outline34)."""
+
+OUTLINE_HOLD_TAPER_STEP = 5.0
+"""How many times less each ring of the taper (:data:`OUTLINE_HOLD_TAPER`) is held than the ring outside it. Why 5
+over 6 rings: of the tapers that end near an anchor's weight, measured on 18 solves at 160x120 (the flat pad and the
+wide view, spheres and cubes, whole frame and ``--roi auto``, design LEDs and calibrated disks; benchmarks/RESULTS.md,
+s39-outline), x30 over 3 rings was worse than x10 over 4 (s38's) in 15 (whole gel up to +0.16 deg), x7 over 5 better
+in 15, **x5 over 6 better in 16** (the design-LED wide sphere 1.686 -> 1.341 deg, the disks' 0.584 -> 0.536), x4 over
+7 better in 16 but past the turn of a dent at the outline (the polar-70 cube's auto box, disks: 1.442 / 1.389 / 1.404),
+x3 over 10 worse in 3 (that box 1.675). The one row x5 lost (+0.014) is a box the outline does not reach, no longer
+held (:data:`OUTLINE_HOLD_MIN_SHARE`)."""
+
+OUTLINE_HOLD_MIN_SHARE = 0.02
+"""The outline is held only where its anchored pixels are at least this share of the solve region's own border
+(:func:`outline_share`: on a whole-frame solve the gel's outline, in a box its edges and the outline within them).
+Why: the held depth pins the depth level where it lies. A ``--roi auto`` box whose corner reached only the rings inside
+the outline (the flat pad's sphere: none of the outline in its 354-pixel border, 5 pixels of the next ring and 187 of
+the taper held) pinned the level at that corner against the design LEDs' level (0.7 % off) and the box bent to it:
+contact 0.874 -> 0.945 deg, whole gel 0.891 -> 0.963. Over 21 presses' auto boxes (42 solves, s39-outline) every
+share from the smallest met, 0.043, up held with gains where the box reaches a dent at the outline (the wide view's
+sphere at polar 57, 9 of 212: whole gel 2.834 -> 2.018 deg unheld -> held with the design LEDs, 1.397 -> 1.066 with
+disks); 2 % (7 of a 354-pixel border) lies between none and that. What no share separates: the flat pad's sphere
+with the design LEDs loses contact AAE held at every share met, 0.085-0.355 (+0.05-0.10 deg; its disks lose none):
+that follows the LED model's level, not the geometry."""
 
 
 def anchor_weights(
@@ -58,7 +81,9 @@ def anchor_weights(
 ) -> tuple[np.ndarray | None, str]:
     """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed, ``1 + weight
     * OUTLINE_HOLD`` where such a pixel is on the gel's outline or the ring inside it (a view past the gel:
-    :data:`OUTLINE_HOLD`), a decade less a ring further in for :data:`OUTLINE_HOLD_TAPER` rings.
+    :data:`OUTLINE_HOLD`), :data:`OUTLINE_HOLD_TAPER_STEP` times less a ring further in for
+    :data:`OUTLINE_HOLD_TAPER` rings; no hold where the outline's anchored pixels are under
+    :data:`OUTLINE_HOLD_MIN_SHARE` of the region's border.
 
     Parameters
     ----------
@@ -96,15 +121,33 @@ def anchor_weights(
     note = f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
     ring = outline_rings(gel, OUTLINE_HOLD_WIDTH + OUTLINE_HOLD_TAPER)  # none on a gel-filling view: as it was
     held = pins & (ring >= 0)
-    if held.any():
-        steps = np.maximum(ring[held] - (OUTLINE_HOLD_WIDTH - 1), 0)  # 0 on the two outer rings, 1, 2, ... inside
-        weights[held] = 1 + weight * OUTLINE_HOLD / 10.0**steps
-        full = int((held & (ring < OUTLINE_HOLD_WIDTH)).sum())
-        note += (
-            f", {full} of them at the gel's outline held to the reference ({int(held.sum()) - full} more within "
-            f"{OUTLINE_HOLD_WIDTH + OUTLINE_HOLD_TAPER} px of it, less)"
+    if not held.any():
+        return weights, note
+    share = outline_share(pins & (ring == 0), mask & gel)
+    if share < OUTLINE_HOLD_MIN_SHARE:  # a corner of the outline, or none of it: the hold would pin a level there
+        return weights, note + (
+            f"; the gel's outline not held: its anchored pixels are {100 * share:.1f} % of the region's border "
+            f"(under {100 * OUTLINE_HOLD_MIN_SHARE:g} %)"
         )
+    steps = np.maximum(ring[held] - (OUTLINE_HOLD_WIDTH - 1), 0)  # 0 on the two outer rings, 1, 2, ... inside
+    weights[held] = 1 + weight * OUTLINE_HOLD / OUTLINE_HOLD_TAPER_STEP**steps
+    full = int((held & (ring < OUTLINE_HOLD_WIDTH)).sum())
+    note += (
+        f", {full} of them at the gel's outline held to the reference ({int(held.sum()) - full} more within "
+        f"{OUTLINE_HOLD_WIDTH + OUTLINE_HOLD_TAPER} px of it, less)"
+    )
     return weights, note
+
+
+def outline_share(outline: np.ndarray, region: np.ndarray) -> float:
+    """The share of ``region``'s border (:func:`.outline.gel_outline` of it: its pixels beside a pixel off it) that
+    ``outline`` covers; 0 for an empty region.
+
+    outline : (H, W) bool -- the gel's outline pixels to count (those anchored in the region);
+    region : (H, W) bool -- the solve's pixels on the gel (the whole gel, or a box's part of it).
+    """
+    border = int(gel_outline(region).sum())
+    return float((outline & region).sum()) / border if border else 0.0
 
 
 def widen_to_anchor(
