@@ -1,6 +1,6 @@
 """A folder watched for new frames: each image file read once it has landed whole, in the order they land
-(``nlips infer MODEL --watch FOLDER``: a lab's camera software, or another machine over a shared folder, writes frames
-there as they come).
+(``nlips infer MODEL --watch FOLDER``, ``nlips live --watch FOLDER``: a lab's camera software, or another machine over a
+shared folder, writes frames there as they come).
 
 File events come from ``watchdog`` (inotify on Linux, FSEvents on macOS, ReadDirectoryChangesW on Windows; its
 polling observer on a network or VM-shared file system, whose writes made elsewhere raise no local event). A file is
@@ -113,7 +113,8 @@ class WatchedFolder(FrameSource):
     Parameters
     ----------
     folder : the folder watched (not its subfolders)
-    shape : (H, W) the frames must have (the model's): another size is skipped with a warning
+    shape : (H, W) the frames must have (the model's): another size is skipped with a warning; None: the first image
+        read sets it (a ``--predictor`` stream, which has no model to go by)
     existing : "skip" (default) the images already there at the start, or "infer" them first, in name order
     poll : list the folder every :data:`POLL_S` instead of waiting for the system's file events; None: by itself on
         a network or VM-shared file system (:func:`network_file_system`), events elsewhere
@@ -122,7 +123,9 @@ class WatchedFolder(FrameSource):
         (``cli._stream.SigtermEndsStream``), since a read may wait for ever
     settle_s : :data:`SETTLE_S` unless given
 
-    Raises CaptureError, one line naming it, when ``folder`` is not a folder.
+    Raises CaptureError, one line naming it, when ``folder`` is not a folder. :meth:`read` may run on another thread
+    than the one that made it (``device.live.ReadAhead``: one thread at a time); :meth:`interrupt` ends a wait from
+    any thread.
     """
 
     bit_depth = 16
@@ -130,7 +133,7 @@ class WatchedFolder(FrameSource):
     def __init__(
         self,
         folder: str | Path,
-        shape: tuple[int, int],
+        shape: tuple[int, int] | None,
         existing: str = "skip",
         poll: bool | None = None,
         tone_curve: np.ndarray | None = None,
@@ -146,8 +149,10 @@ class WatchedFolder(FrameSource):
             raise CaptureError(f"{self.folder}: not a folder (--watch takes the folder the frames are written into)")
         if existing not in EXISTING:
             raise CaptureError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
-        self._shape = (int(shape[0]), int(shape[1]))
+        self._shape = None if shape is None else (int(shape[0]), int(shape[1]))
+        self._size_of = "the model's frames are"  # whose size the frames must have, for the warning
         self.tone_curve, self.stop, self.settle_s = tone_curve, stop, float(settle_s)
+        self._interrupted = False
         self.current: Path | None = None
         """The file of the frame :meth:`read` returned last."""
         self.skipped = 0
@@ -170,8 +175,14 @@ class WatchedFolder(FrameSource):
         """Whether the folder is listed every :data:`POLL_S` (no file events)."""
 
     @property
-    def shape(self) -> tuple[int, int]:
+    def shape(self) -> tuple[int, int] | None:
+        """(H, W) of the frames; None until the first image is read when none was given."""
         return self._shape
+
+    def interrupt(self) -> None:
+        """End the wait of :meth:`read` (now, or the next one) with ``StopLive``, from any thread: a reader thread
+        that waits for a file that may never come is told so before it is joined (``device.live.ReadAhead``)."""
+        self._interrupted = True
 
     # ------------------------------------------------------------------ setting up
     def _start(self, existing: str) -> int:
@@ -234,11 +245,12 @@ class WatchedFolder(FrameSource):
     def read(self) -> np.ndarray:
         """The next whole image landed in the folder: (H, W, 3) uint16, RGB, stored values; waits for one.
 
-        Raises ``device.live.StopLive`` when ``stop()`` says so, CaptureError when the folder was removed."""
+        Raises ``device.live.StopLive`` when ``stop()`` says so or :meth:`interrupt` was called, CaptureError when the
+        folder was removed."""
         from .live import StopLive
 
         while True:
-            if self.stop is not None and self.stop():
+            if self._interrupted or (self.stop is not None and self.stop()):
                 raise StopLive
             self._take_events()
             for path in self._whole():
@@ -365,11 +377,13 @@ class WatchedFolder(FrameSource):
             self.skipped += 1
             self._warnings["that cannot be read"](f"{exc}; skipped, the watch goes on", path)
             return None
+        if self._shape is None:  # no model to go by: the first image read sets the stream's size
+            self._shape, self._size_of = frame.shape[:2], f"the stream's first frame ({os.path.basename(path)}) is"
         if frame.shape[:2] != self._shape:
             (h, w), (mh, mw) = frame.shape[:2], self._shape
             self.skipped += 1
             self._warnings["of another size"](
-                f"{path}: image is {w}x{h}, the model's frames are {mw}x{mh}; skipped, the watch goes on", path
+                f"{path}: image is {w}x{h}, {self._size_of} {mw}x{mh}; skipped, the watch goes on", path
             )
             return None
         return frame

@@ -66,13 +66,13 @@ def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipp
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
     started = threading.Event()
-    say_watching = infer._say_watching
+    say_watching = infer.say_watching
 
     def said(*args):
         say_watching(*args)
         started.set()
 
-    monkeypatch.setattr(infer, "_say_watching", said)
+    monkeypatch.setattr(infer, "say_watching", said)
 
     def writer() -> None:
         assert started.wait(GIVE_UP_S)
