@@ -32,7 +32,7 @@ from ._stream import (
     held_stream_folder,
     saved_line,
 )
-from ._watch import add_watch_arguments, check_watch_arguments, say_watching
+from ._watch import add_watch_arguments, check_watch_arguments
 from .options import add_allow_edited, option, typed
 
 if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are imported when frames are inferred
@@ -323,6 +323,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     from ..device.live import LiveStats, SaveSink, stream
     from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
+    from . import _watch
     from ._stream import open_frames, reset_at_the_end, running_rate_report
     from ._watch import WatchedFilesSink, frame_files, say_skipped, watched_folder
 
@@ -368,7 +369,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 predictor, name, in_light=in_light, frame_name=frame_files(source) if watching else None
             )
             if watching:
-                say_watching(watched_folder(source), args.existing)
+                _watch.say_watching(watched_folder(source), args.existing)
 
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))

@@ -324,7 +324,8 @@ def _open_and_stream(
 
     from ..device.live import SaveSink, StopLive, stream
     from ..report.live import NormalMapPng, WindowSink
-    from ._watch import WatchedFilesSink, frame_files, say_watching, watched_folder
+    from . import _watch
+    from ._watch import WatchedFilesSink, frame_files, watched_folder
 
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
@@ -367,7 +368,7 @@ def _open_and_stream(
         ended["lit_by_board"] = getattr(source, "lit_by_board", False)
         if args.watch:
             done["watched"] = watched_folder(source)
-            say_watching(done["watched"], args.existing)
+            _watch.say_watching(done["watched"], args.existing)
         term.arm()
         stream(
             source,
