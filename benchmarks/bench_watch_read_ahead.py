@@ -5,15 +5,16 @@ frame's latency (from its rename to its result), interleaved.
 In process (default): ``device.live.stream`` of the same ``WatchedFolder`` with and without the read-ahead, the
 predictor ``learn.watch.MismatchWatch`` over the model (as ``nlips live --model`` runs it), no output; a frame's
 latency from its rename (``time.perf_counter`` after ``os.replace``) to the end of its predictor call (a sink).
-Whole commands (``--before CHECKOUT``): ``nlips infer MODEL --watch FOLDER --out OUT --max-frames N`` of CHECKOUT (a
-checkout without the read-ahead) and of this one, each a user's process (``--live``: this checkout's ``nlips live
---model MODEL --watch FOLDER --no-window --out OUT --max-frames N`` alone, what a lab watching a folder runs); a
-frame's latency from its rename to its ``frame_NNNNNN.npz`` (the file's modification time against ``time.time()``
-after the rename: the kernel's coarse file clock, a few ms).
+Whole commands (``--before CHECKOUT [--after CHECKOUT]``): ``nlips infer MODEL --watch FOLDER --out OUT --max-frames N``
+of a checkout without the read-ahead and of one with it (default: this one), each a user's process (``--live``: this
+checkout's ``nlips live --model MODEL --watch FOLDER --no-window --out OUT --max-frames N`` alone, what a lab watching a
+folder runs); a frame's latency from its rename to its ``frame_NNNNNN.npz`` (the file's modification time against
+``time.time()`` after the rename: the kernel's coarse file clock, a few ms).
 
 Run: .venv/bin/python benchmarks/bench_watch_read_ahead.py --model M.pt --frame PRESS/tricolor.png
-     [--frames 40] [--pairs 3] [--periods 0.05,0.25] [--before /path/to/checkout | --live]
-Prints Markdown; the results are in benchmarks/RESULTS.md (s39-livewatch).
+     [--frames 40] [--pairs 3] [--periods 0.05,0.25] [--before CHECKOUT [--after CHECKOUT] | --live]
+Prints Markdown; the results are in benchmarks/RESULTS.md (s39-livewatch: --before 1f11bc1c, --after 83904661, the
+commit that read watched folders ahead; measured no gain, so the product reads them on the stream's thread).
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ def in_process(model: Path, frame: Path, n: int, period: float, ahead: bool, wor
     watch = MismatchWatch(predictor, str(work), in_light=True)
     landed: list[float] = []
     done: list[float] = []
-    watched = WatchedFolder(work, predictor.shape, tone_curve=predictor.tone_curve)
+    stopping = threading.Event()  # ends the read-ahead thread's wait for a file that never comes, so it is joined
+    watched = WatchedFolder(work, predictor.shape, tone_curve=predictor.tone_curve, stop=stopping.is_set)
     source = ReadAhead(watched) if ahead else watched
     thread = threading.Thread(target=_writer(frame, work, n, period, landed))
     c0 = time.process_time()
@@ -73,6 +75,7 @@ def in_process(model: Path, frame: Path, n: int, period: float, ahead: bool, wor
     try:
         stats = stream(source, watch, [lambda i, f, r: done.append(time.perf_counter())], max_frames=n, report=None)
     finally:
+        stopping.set()
         source.close()
         if ahead:
             watched.close()
@@ -159,7 +162,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--pairs", type=int, default=3)
     ap.add_argument("--periods", default="0.05,0.25", help="seconds between the writer's frames, comma-separated")
-    ap.add_argument("--before", type=Path, help="a checkout without the read-ahead: whole commands, it against this")
+    ap.add_argument("--before", type=Path, help="a checkout without the read-ahead: whole commands, it against --after")
+    ap.add_argument("--after", type=Path, default=ROOT, help="a checkout with the read-ahead (default: this one)")
     ap.add_argument("--live", action="store_true", help="whole `nlips live --watch` commands of this checkout alone")
     args = ap.parse_args()
     model, frame = args.model.resolve(), args.frame.resolve()
@@ -172,7 +176,10 @@ def main() -> None:
     elif args.before is None:
         sides, what = {"on the stream's thread": False, "read ahead (one thread)": True}, "in process, no output"
     else:
-        sides = {f"before ({args.before.name})": args.before.resolve(), "after (read ahead)": ROOT}
+        sides = {
+            f"before ({args.before.name})": args.before.resolve(),
+            f"after ({args.after.name})": args.after.resolve(),
+        }
         what = "whole `nlips infer --watch --out` commands"
     with tempfile.TemporaryDirectory(prefix="bench-watch-ahead-") as tmp:
         work = Path(tmp) / "w"

@@ -262,8 +262,9 @@ def open_frames(
     says so, and the predictor is then told its frames are in light: ``MismatchWatch.in_light``). ``shape``: (H, W)
     of the model's frames, which a watched folder's files must have (``--watch``: there is no first frame to go by);
     ``stop``: asked while a watched folder waits for its next file (SIGTERM's flag: ``SigtermEndsStream``).
-    A watched folder is always read ahead, on one thread (``read_ahead`` or not): its ``current`` (the file of the frame
-    handed out last) is the returned source's (``cli._watch``).
+    A watched folder is read on the stream's thread, each file as it lands, never ahead (``read_ahead`` or not): a
+    reader thread a file ahead gained no frame rate and no latency (benchmarks/RESULTS.md, s39-livewatch); its
+    ``current`` (the file of the frame read last) is the returned source's (``cli._watch.frame_files``).
 
     The emulated sensor when ``--emulate``, a watched folder (``device.watch_folder``) when ``--watch``, else
     ``--camera`` (camera, folder or video) with the LED board
@@ -288,15 +289,15 @@ def open_frames(
     if watching:  # `nlips live --watch FOLDER`, `nlips infer MODEL --watch FOLDER`
         from ._watch import open_watched_folder
 
-        source = stack.enter_context(open_watched_folder(args, shape, tone_curve, stop))
+        source = stack.enter_context(open_watched_folder(args, shape, tone_curve, stop))  # read as each file lands
     else:
         camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
         settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
         source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
     # a watched folder's files, like a recording's, were not lit by this board at the moment they were read
     live = getattr(source, "live", False)
-    if (read_ahead or watching) and not live:  # a video, sequence, folder or watched folder: decoded while the frame
-        from ..device.live import ReadAhead  # before is inferred (a watched one on one thread, each file as it lands)
+    if read_ahead and not live and not watching:  # a video, sequence or folder: decoded while the frame before is
+        from ..device.live import ReadAhead  # inferred
 
         source = stack.enter_context(ReadAhead(source))
     if args.port:

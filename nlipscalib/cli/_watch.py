@@ -88,21 +88,12 @@ def open_watched_folder(
     return WatchedFolder(args.watch, shape, args.existing or "skip", poll, tone_curve=tone_curve, stop=stop)
 
 
-def watched_folder(source: object) -> WatchedFolder | None:
-    """The WatchedFolder under ``source`` (as ``open_frames`` wrapped it: a read-ahead, the LED board's watch), or
-    None when it is not a watched folder's stream."""
-    from ..device.watch_folder import WatchedFolder
-
-    while source is not None and not isinstance(source, WatchedFolder):
-        source = vars(source).get("source") if hasattr(source, "__dict__") else None
-    return source
-
-
 def frame_files(source: object) -> Callable[[int], str]:
-    """Names the frame a stream of ``source`` (a watched folder, as ``open_frames`` returned it) handed out last by
-    its file, ``FOLDER/NAME.png``, for the warnings (``learn.watch.MismatchWatch.frame_name``): the file a user can
-    open, where "FOLDER frame 12" said nothing of which one (frames.tsv keeps the mapping). The index is not used:
-    the frame being inferred is the one read last."""
+    """Names the frame a stream of ``source`` (a watched folder, as ``open_frames`` returned it: the LED board's
+    watch forwards ``current``) read last by its file, ``FOLDER/NAME.png``, for the warnings
+    (``learn.watch.MismatchWatch.frame_name``): the file a user can open, where "FOLDER frame 12" said nothing of which
+    one (frames.tsv keeps the mapping). The index is not used: the frame being inferred is the one read last (the
+    folder is not read ahead)."""
     return lambda index: str(source.current)
 
 
@@ -135,7 +126,7 @@ class WatchedFilesSink:
 
     Made anew by each run, as its frames are (a stream does not resume); the watched folder's name is in
     ``nlips infer``'s stream.json ``input``. ``source``: the stream's source as ``open_frames`` returned it (its
-    ``current``: the file of the frame handed out last)."""
+    ``current``: the file of the frame read last)."""
 
     def __init__(self, folder: str | Path, every: int, source: object) -> None:
         self.path, self.every, self.source = Path(folder) / WATCHED_FILES, max(int(every), 1), source

@@ -325,7 +325,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     from ..report.live import NormalMapPng
     from . import _watch
     from ._stream import open_frames, reset_at_the_end, running_rate_report
-    from ._watch import WatchedFilesSink, frame_files, say_skipped, watched_folder
+    from ._watch import WatchedFilesSink, frame_files, say_skipped
 
     stats, watch, stages, cpu0, watching = LiveStats(), None, None, None, False
     try:
@@ -369,7 +369,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 predictor, name, in_light=in_light, frame_name=frame_files(source) if watching else None
             )
             if watching:
-                _watch.say_watching(watched_folder(source), args.existing)
+                _watch.say_watching(source, args.existing)
 
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
@@ -400,7 +400,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
         raise
     _finish_stream(args, name, predictor, stats, stages, cpu, watch)
     if watching:
-        say_skipped(watched_folder(source))
+        say_skipped(source)
     if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
         raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
     return 0

@@ -325,7 +325,7 @@ def _open_and_stream(
     from ..device.live import SaveSink, StopLive, stream
     from ..report.live import NormalMapPng, WindowSink
     from . import _watch
-    from ._watch import WatchedFilesSink, frame_files, watched_folder
+    from ._watch import WatchedFilesSink, frame_files
 
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
@@ -367,7 +367,7 @@ def _open_and_stream(
         done["predict"] = predict
         ended["lit_by_board"] = getattr(source, "lit_by_board", False)
         if args.watch:
-            done["watched"] = watched_folder(source)
+            done["watched"] = source
             _watch.say_watching(done["watched"], args.existing)
         term.arm()
         stream(

@@ -91,15 +91,9 @@ class ReadAhead:
     PNG in about 10 ms (benchmarks/RESULTS.md). Not for a live camera (it would hand out a frame one period old) nor
     for the emulator (its press changes before each read).
 
-    A watched folder (``device.watch_folder.WatchedFolder``) is read as a video is, on one thread: each file is
-    decoded as it lands, while the frame before is inferred. Its ``current`` (the file of the frame handed out last)
-    is carried with each frame, as the reader thread may be a file ahead; a wait for a file that never comes ends at
-    :meth:`close` (the source's ``interrupt()``).
-
     Parameters
     ----------
-    source : a frame source (``read()``, ``shape``), optionally with ``frame_at(index)`` and ``position``, or
-        ``current`` and ``interrupt()``
+    source : a frame source (``read()``, ``shape``), optionally with ``frame_at(index)`` and ``position``
     workers : decoding threads for image files (default :func:`decoding_workers`); a video uses one
     """
 
@@ -113,9 +107,6 @@ class ReadAhead:
         # (``MismatchWatch.in_light``), which is this one when a recording is read ahead; None: frames as stored
         self.tone_curve = getattr(source, "tone_curve", None)
         self._indexed = callable(getattr(source, "frame_at", None))
-        self._named = not self._indexed and hasattr(source, "current")
-        self.current = None
-        """The file of the frame :meth:`read` handed out last (a source that names its frames' files, ``current``)."""
         n = max(1, int(workers or decoding_workers())) if self._indexed else 1
         self._ahead = 2 * n if self._indexed else 1
         self._index = getattr(source, "position", 0)
@@ -127,24 +118,14 @@ class ReadAhead:
             self._queue.append(self._pool.submit(self.source.frame_at, self._index))
             self._index += 1
         else:
-            self._queue.append(self._pool.submit(self._read_named if self._named else self.source.read))
-
-    def _read_named(self) -> tuple[np.ndarray, object]:
-        frame = self.source.read()
-        return frame, self.source.current  # read on the one reader thread: this frame's file
+            self._queue.append(self._pool.submit(self.source.read))
 
     def read(self) -> np.ndarray:
         while len(self._queue) < 1 + self._ahead:
             self._submit()
-        frame = self._queue.popleft().result()  # re-raises the source's error (its end) for the frame that had it
-        if self._named:
-            frame, self.current = frame
-        return frame
+        return self._queue.popleft().result()  # re-raises the source's error (its end) for the frame that had it
 
     def close(self) -> None:
-        interrupt = getattr(self.source, "interrupt", None)
-        if callable(interrupt):  # a reader waiting for a file (a watched folder) would never be joined
-            interrupt()
         for pending in self._queue:
             pending.cancel()
         self._pool.shutdown(wait=True)

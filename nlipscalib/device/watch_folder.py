@@ -123,9 +123,11 @@ class WatchedFolder(FrameSource):
         (``cli._stream.SigtermEndsStream``), since a read may wait for ever
     settle_s : :data:`SETTLE_S` unless given
 
-    Raises CaptureError, one line naming it, when ``folder`` is not a folder. :meth:`read` may run on another thread
-    than the one that made it (``device.live.ReadAhead``: one thread at a time); :meth:`interrupt` ends a wait from
-    any thread.
+    Raises CaptureError, one line naming it, when ``folder`` is not a folder.
+
+    Read on the stream's thread, not ahead on another (``device.live.ReadAhead``): a reader thread a file ahead gained
+    neither frame rate nor latency (benchmarks/RESULTS.md, s39-livewatch), and a wait for a file that never comes would
+    keep it from being joined.
     """
 
     bit_depth = 16
@@ -152,7 +154,6 @@ class WatchedFolder(FrameSource):
         self._shape = None if shape is None else (int(shape[0]), int(shape[1]))
         self._size_of = "the model's frames are"  # whose size the frames must have, for the warning
         self.tone_curve, self.stop, self.settle_s = tone_curve, stop, float(settle_s)
-        self._interrupted = False
         self.current: Path | None = None
         """The file of the frame :meth:`read` returned last."""
         self.skipped = 0
@@ -178,11 +179,6 @@ class WatchedFolder(FrameSource):
     def shape(self) -> tuple[int, int] | None:
         """(H, W) of the frames; None until the first image is read when none was given."""
         return self._shape
-
-    def interrupt(self) -> None:
-        """End the wait of :meth:`read` (now, or the next one) with ``StopLive``, from any thread: a reader thread
-        that waits for a file that may never come is told so before it is joined (``device.live.ReadAhead``)."""
-        self._interrupted = True
 
     # ------------------------------------------------------------------ setting up
     def _start(self, existing: str) -> int:
@@ -245,12 +241,11 @@ class WatchedFolder(FrameSource):
     def read(self) -> np.ndarray:
         """The next whole image landed in the folder: (H, W, 3) uint16, RGB, stored values; waits for one.
 
-        Raises ``device.live.StopLive`` when ``stop()`` says so or :meth:`interrupt` was called, CaptureError when the
-        folder was removed."""
+        Raises ``device.live.StopLive`` when ``stop()`` says so, CaptureError when the folder was removed."""
         from .live import StopLive
 
         while True:
-            if self._interrupted or (self.stop is not None and self.stop()):
+            if self.stop is not None and self.stop():
                 raise StopLive
             self._take_events()
             for path in self._whole():

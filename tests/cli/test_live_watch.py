@@ -179,8 +179,8 @@ def _wait_for(what, seconds: float = GIVE_UP_S) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_ctrl_c_or_sigterm_ends_a_live_watch_with_its_summary(tmp_path, sig):
-    """The watch waits for files for ever, on its read-ahead thread: Ctrl-C ends it with the summary (exit 0), and so
-    does SIGTERM (exit 143 after the summary), though the stream waits for a file, not inferring."""
+    """The watch waits for files for ever: Ctrl-C ends it with the summary (exit 0), and so does SIGTERM (exit 143
+    after the summary), though the stream waits for a file, not inferring."""
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))

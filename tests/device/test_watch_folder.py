@@ -198,35 +198,6 @@ def test_a_long_watch_remembers_a_bounded_number_of_files_and_a_rescan_reads_non
         assert set(source._landing) <= {str(folder / "new.png")}
 
 
-def test_read_ahead_of_a_watched_folder_hands_out_each_frame_with_its_own_file(folder):
-    """The reader thread may be a file ahead of the frame handed out: each frame comes with the file it was read from
-    (ReadAhead's ``current``), in the order the files land."""
-    from nlipscalib.device.live import ReadAhead
-
-    with WatchedFolder(folder, SHAPE) as watched:
-        _bounded(watched)
-        with ReadAhead(watched) as ahead:
-            for i, name in enumerate(("c.png", "a.png", "b.png", "d.png")):
-                _renamed_into_place(folder, name, 1000 * (i + 1))
-            seen = [(int(ahead.read()[0, 0, 0]), ahead.current.name) for _ in range(4)]
-    assert seen == [(1000, "c.png"), (2000, "a.png"), (3000, "b.png"), (4000, "d.png")]
-
-
-def test_closing_a_read_ahead_ends_its_threads_wait_for_a_file_that_never_comes(folder):
-    """--max-frames reached, Ctrl-C: the reader thread waits in ``read`` for the next file; ``close`` interrupts that
-    wait (StopLive on the thread) and joins it, where it would have waited for ever."""
-    from nlipscalib.device.live import ReadAhead
-
-    with WatchedFolder(folder, SHAPE) as watched:
-        _bounded(watched)
-        ahead = ReadAhead(watched)
-        _renamed_into_place(folder, "only.png", 1234)
-        assert int(ahead.read()[0, 0, 0]) == 1234  # the thread now waits for a second file
-        ahead.close()  # returns: _bounded's limit would fail the test otherwise
-        with pytest.raises(StopLive):
-            watched.read()  # interrupted for good: a later read does not wait either
-
-
 def test_without_a_shape_the_first_image_read_sets_it_and_another_size_is_skipped_naming_it(folder, caplog):
     """A --predictor stream has no model to give the size: the first image read sets it."""
     with WatchedFolder(folder, None) as source:
