@@ -7,9 +7,9 @@ predictor ``learn.watch.MismatchWatch`` over the model (as ``nlips live --model`
 latency from its rename (``time.perf_counter`` after ``os.replace``) to the end of its predictor call (a sink).
 Whole commands (``--before CHECKOUT [--after CHECKOUT]``): ``nlips infer MODEL --watch FOLDER --out OUT --max-frames N``
 of a checkout without the read-ahead and of one with it (default: this one), each a user's process (``--live``: this
-checkout's ``nlips live --model MODEL --watch FOLDER --no-window --out OUT --max-frames N`` alone, what a lab watching a
-folder runs); a frame's latency from its rename to its ``frame_NNNNNN.npz`` (the file's modification time against
-``time.time()`` after the rename: the kernel's coarse file clock, a few ms).
+checkout's ``nlips live --model MODEL --watch FOLDER --no-window --out OUT --max-frames N``, what a lab watching a
+folder runs, against its ``nlips infer`` of the same); a frame's latency from its rename to its ``frame_NNNNNN.npz``
+(the file's modification time against ``time.time()`` after the rename: the kernel's coarse file clock, a few ms).
 
 Run: .venv/bin/python benchmarks/bench_watch_read_ahead.py --model M.pt --frame PRESS/tricolor.png
      [--frames 40] [--pairs 3] [--periods 0.05,0.25] [--before CHECKOUT [--after CHECKOUT] | --live]
@@ -172,7 +172,8 @@ def main() -> None:
 
     print(f"machine: {machine()}; load average at the start {'/'.join(f'{x:.1f}' for x in os.getloadavg())}\n")
     if args.live:
-        sides, what = {"`nlips live --watch`": ROOT}, "whole `nlips live --model --watch --no-window --out` commands"
+        sides = {"`nlips infer --watch`": False, "`nlips live --model --watch --no-window`": True}
+        what = "whole commands of this checkout, --out, `nlips infer` and `nlips live` interleaved"
     elif args.before is None:
         sides, what = {"on the stream's thread": False, "read ahead (one thread)": True}, "in process, no output"
     else:
@@ -185,9 +186,12 @@ def main() -> None:
         work = Path(tmp) / "w"
 
         def run(side: str, period: float) -> dict:
-            if args.live or args.before is not None:
-                tag = f"s39-{'live' if args.live else 'ahead'}-{side[:5]}"
-                return whole_command(sides[side], model, frame, args.frames, period, work, tag, live=args.live)
+            if args.live:
+                tag = f"s39-{'live' if sides[side] else 'infer'}"
+                return whole_command(ROOT, model, frame, args.frames, period, work, tag, live=sides[side])
+            if args.before is not None:
+                tag = f"s39-ahead-{side[:5]}"
+                return whole_command(sides[side], model, frame, args.frames, period, work, tag)
             return in_process(model, frame, args.frames, period, sides[side], work)
 
         rows = {(side, p): [] for p in periods for side in sides}
