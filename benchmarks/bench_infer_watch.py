@@ -111,7 +111,7 @@ def one(side: str, model: Path, frame: Path, n: int, period: float, work: Path) 
     result |= {"frames": int(rate.group(1)), "stream_fps": float(rate.group(3))}
     result["predictor_fps"] = float(predictor.group(1)) if predictor else float("nan")
     if landed:  # each frame's arrays written, against its file's landing (both the file system's clock)
-        from nlipscalib.cli.infer import WATCHED_FILES
+        from nlipscalib.cli._watch import WATCHED_FILES
 
         named = (out / WATCHED_FILES).read_text(encoding="utf-8").splitlines()[1:]
         if [line.split("\t")[1] for line in named] != [f"f{i:04d}.png" for i in range(n)]:

@@ -141,7 +141,10 @@ def check_source_arguments(args: argparse.Namespace) -> None:
 
 
 def live_camera(args: argparse.Namespace) -> bool:
-    """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern)."""
+    """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern) nor a
+    watched folder (``--watch``: ``nlips live``'s default camera is not opened then)."""
+    if getattr(args, "watch", None):
+        return False
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     return camera is not None and (str(camera).isdigit() or str(camera).startswith("/dev/"))
 
@@ -259,6 +262,9 @@ def open_frames(
     says so, and the predictor is then told its frames are in light: ``MismatchWatch.in_light``). ``shape``: (H, W)
     of the model's frames, which a watched folder's files must have (``--watch``: there is no first frame to go by);
     ``stop``: asked while a watched folder waits for its next file (SIGTERM's flag: ``SigtermEndsStream``).
+    A watched folder is read on the stream's thread, each file as it lands, never ahead (``read_ahead`` or not): a
+    reader thread a file ahead gained no frame rate and no latency (benchmarks/RESULTS.md, s39-livewatch); its
+    ``current`` (the file of the frame read last) is the returned source's (``cli._watch.frame_files``).
 
     The emulated sensor when ``--emulate``, a watched folder (``device.watch_folder``) when ``--watch``, else
     ``--camera`` (camera, folder or video) with the LED board
@@ -279,20 +285,19 @@ def open_frames(
 
     if args.emulate:
         return _emulated_source(args, stack, loop=loop or args.max_frames is not None, stats=stats)
-    if getattr(args, "watch", None):  # `nlips infer --watch FOLDER` (nlips live has no such flag)
-        from ..device.watch_folder import WatchedFolder
+    watching = bool(getattr(args, "watch", None))
+    if watching:  # `nlips live --watch FOLDER`, `nlips infer MODEL --watch FOLDER`
+        from ._watch import open_watched_folder
 
-        poll = True if args.poll else None  # None: polled by itself on a network file system
-        watched = WatchedFolder(args.watch, shape, args.existing or "skip", poll, tone_curve=tone_curve, stop=stop)
-        source = stack.enter_context(watched)  # read as each file lands: nothing to decode ahead
+        source = stack.enter_context(open_watched_folder(args, shape, tone_curve, stop))  # read as each file lands
     else:
         camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
         settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
         source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
     # a watched folder's files, like a recording's, were not lit by this board at the moment they were read
     live = getattr(source, "live", False)
-    if read_ahead and not live and not getattr(args, "watch", None):  # a video, sequence or folder: decoded while
-        from ..device.live import ReadAhead  # the frame before is inferred
+    if read_ahead and not live and not watching:  # a video, sequence or folder: decoded while the frame before is
+        from ..device.live import ReadAhead  # inferred
 
         source = stack.enter_context(ReadAhead(source))
     if args.port:

@@ -64,6 +64,7 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
     "live": (
         ("nlips live --model model.pt --camera 0 --port /dev/ttyACM0", "the sensor, shown in a window"),
         ("nlips live --model model.pt --emulate nlipstac --max-frames 50 --out frames", "the emulator, saved"),
+        ("nlips live --model model.pt --watch incoming/", "a capture program's folder"),
     ),
     "calibrate": (("nlips calibrate session --leds leds.json", "NLiPsNet's training data in session/calibration"),),
     "train": (

@@ -33,6 +33,7 @@ from ._stream import (
     held_stream_folder,
     saved_line,
 )
+from ._watch import add_watch_arguments, check_watch_arguments
 from .options import add_allow_edited, option, typed
 
 if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are imported when frames are inferred
@@ -43,7 +44,6 @@ if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are 
     from ..core.claims import Owner
     from ..core.surface_files import GroundTruth
     from ..device.live import FrameReader, LiveStats
-    from ..device.watch_folder import WatchedFolder
     from ..learn.infer import Frame, Predictor
     from ..learn.watch import MismatchWatch
 
@@ -70,9 +70,6 @@ STILLS_WARNED_IN_FULL = 3
 each naming its file; later ones are counted (``progress.RepeatedWarning``; each with -v)."""
 WATCHED = "watched"
 """What :func:`_stream_input` returns for ``--watch FOLDER``."""
-WATCHED_FILES = "frames.tsv"
-"""What a watched folder's stream with ``--out`` writes beside its frames: each saved frame's file
-(:class:`_WatchedFilesSink`)."""
 STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
 """What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
@@ -157,26 +154,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(plus a matplotlib summary sheet), none. A stream keeps its frames' normal maps (--out)",
     )
     p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
-    p.add_argument(
-        "--watch",
-        metavar="FOLDER",
-        help="stream the frames written into FOLDER as they land (a camera's software, or another machine over a "
-        "shared folder): each image is read once whole (renamed into place, closed after writing, or unchanged for "
-        "1 s), in the order they land, until Ctrl-C or --max-frames; other files, unreadable images and images of "
-        "another size are skipped with a warning. With --out, frames.tsv names each saved frame's file",
-    )
-    p.add_argument(
-        "--existing",
-        choices=("skip", "infer"),
-        help="--watch: the images already in FOLDER when the watch starts are skipped (default) or inferred first, "
-        "in name order",
-    )
-    p.add_argument(
-        "--poll",
-        action="store_true",
-        help="--watch: list FOLDER every 0.25 s instead of waiting for the system's file events (chosen by itself "
-        "on NFS, SMB and VM-shared folders, whose writes from another machine raise no event here)",
-    )
+    add_watch_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
     add_allow_edited(p, "infer the tri-colour frame of")
@@ -208,9 +186,7 @@ def run(args: argparse.Namespace) -> int:
             "give inputs (presses, PNG frames or a video), --camera SPEC, --emulate SCENE, --watch FOLDER or --port "
             "nlipsemu://ID"
         )
-    for dest in typed(args, ("existing",)) + (["poll"] if args.poll else []):
-        if not args.watch:
-            raise ConfigError(f"{option(dest)} is for --watch FOLDER (a folder watched for frames); drop it")
+    check_watch_arguments(args)  # --existing / --poll alone, the folder missing: one line before the model loads
     if args.max_frames is not None:
         check_count("--max-frames", args.max_frames, minimum=1)
     if stream_input is None:  # only a stream lights the LED board, or has frames to count or skip
@@ -308,18 +284,6 @@ def _check_video(path: str) -> None:
         cap.release()
 
 
-def _check_watched_folder(folder: str) -> None:
-    """One line naming ``--watch``'s folder when it is missing or not a folder (before the model loads)."""
-    from pathlib import Path
-
-    from ..core.errors import CaptureError
-
-    if not Path(folder).exists():
-        raise CaptureError(f"--watch {folder}: no such folder (make it, or name the one the frames are written into)")
-    if not Path(folder).is_dir():
-        raise CaptureError(f"--watch {folder}: not a folder (--watch takes the folder the frames are written into)")
-
-
 def _run_stream(args: argparse.Namespace, what: str) -> int:
     import pathlib
 
@@ -337,8 +301,6 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     if video:
         _check_video(what)
         args.camera = what
-    if what == WATCHED:  # a missing folder: one line now, before the model loads
-        _check_watched_folder(args.watch)
     name = {"emulated": "emulated sensor", WATCHED: args.watch}.get(what, what if video else f"camera {what}")
     with held_stream_folder(args.out, "nlips infer"):  # another stream into --out: refused before the model loads
         predictor = nlipsnet_predictor(args, depth=not args.no_depth)
@@ -364,9 +326,10 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     from ..core.errors import CaptureError, NlipsError
     from ..device.live import LiveStats, SaveSink, stream
     from ..learn.watch import MismatchWatch
-    from ..progress import say
     from ..report.live import NormalMapPng
+    from . import _watch
     from ._stream import open_frames, reset_at_the_end, running_rate_report
+    from ._watch import WatchedFilesSink, frame_files, say_skipped
 
     stats, watch, stages, cpu0, watching = LiveStats(), None, None, None, False
     try:
@@ -401,14 +364,16 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                     sinks.append(_PlySink(args.out, args.every, args.mesh))
                 if watching:
                     sinks.append(
-                        stack.enter_context(contextlib.closing(_WatchedFilesSink(args.out, args.every, source)))
+                        stack.enter_context(contextlib.closing(WatchedFilesSink(args.out, args.every, source)))
                     )
             elif args.ply or args.mesh:
                 log.warning("--ply without --out: no point clouds are written")
 
-            watch = MismatchWatch(predictor, name, in_light=in_light)
+            watch = MismatchWatch(
+                predictor, name, in_light=in_light, frame_name=frame_files(source) if watching else None
+            )
             if watching:
-                _say_watching(source, args.existing)
+                _watch.say_watching(source, args.existing)
 
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
@@ -438,8 +403,8 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
         _finish_stream(args, name, predictor, stats, stages, cpu, watch, after_error=True)
         raise
     _finish_stream(args, name, predictor, stats, stages, cpu, watch)
-    if watching and source.skipped:
-        say(f"{args.watch}: {source.skipped} file(s) skipped (not images, unreadable or of another size; see above)")
+    if watching:
+        say_skipped(source)
     if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
         raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
     return 0
@@ -474,48 +439,6 @@ def _finish_stream(
         ply = ", .ply" if args.ply or args.mesh else ""
         print_result(args.out)
         say(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
-
-
-def _say_watching(source: WatchedFolder, existing: str) -> None:
-    """The line a watch starts with: what it waits for, what it did with the images already there, how it ends."""
-    from ..progress import say
-
-    there = source.existing
-    if not there:
-        before = ""
-    elif existing == "infer":
-        before = f"; the {there} image(s) already there first (--existing infer)"
-    else:
-        before = f"; {there} image(s) already there skipped (--existing infer infers them first)"
-    how = "listed every 0.25 s" if source.polling else "file events"
-    say(f"watching {source.folder} for frames as they land ({how}){before}; Ctrl-C ends")
-
-
-class _WatchedFilesSink:
-    """``OUT/frames.tsv``: the file each kept frame of a watched folder was read from (``frame_NNNNNN<TAB>FILE``, a
-    line a frame, written as it is saved), since the frames land in no order their names tell.
-
-    Made anew by each run, as its frames are (a stream does not resume); the watched folder's name is in
-    stream.json's ``input``."""
-
-    def __init__(self, folder: str | Path, every: int, source: WatchedFolder) -> None:
-        from pathlib import Path
-
-        self.path, self.every, self.source = Path(folder) / WATCHED_FILES, max(int(every), 1), source
-        self._file = None
-
-    def __call__(self, index: int, frame: np.ndarray, result: Frame) -> None:
-        if index % self.every:
-            return
-        if self._file is None:
-            self._file = open(self.path, "w", encoding="utf-8", newline="\n")  # open while the stream runs
-            self._file.write("frame\tfile\n")
-        self._file.write(f"frame_{index:06d}\t{self.source.current.name}\n")
-        self._file.flush()  # a line a frame, there when the frame is: a stream stopped by a kill keeps its lines
-
-    def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
 
 
 class _EndsCleanly:

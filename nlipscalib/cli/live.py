@@ -2,7 +2,8 @@
 maps.
 
 Sources: a camera (with the LED board lit in the tri-colour pattern), a folder or video of recorded
-tri-colour frames, or the emulated sensor (``--emulate SCENE``: the twin pressing its scripted presses
+tri-colour frames, a folder watched for frames as they land (``--watch FOLDER``: a capture program's, cli/_watch.py),
+or the emulated sensor (``--emulate SCENE``: the twin pressing its scripted presses
 in turn; ``--port nlipsemu://ID`` without ``--camera`` is the emulated nlipstac sensor with its board at
 that URL). The emulated stream is its script once, looped while a window shows it.
 
@@ -38,6 +39,7 @@ from ._stream import (
     size_emulator_for,
     warn_earlier_frames,
 )
+from ._watch import add_watch_arguments, check_watch_arguments
 from .capture import CAMERA_RESPONSES
 
 if TYPE_CHECKING:  # named in hints only: numpy and the device loop are imported when a stream runs
@@ -60,11 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "live",
         help="live normal and depth maps from tri-colour frames (NLiPsNet, or a lookup table)",
         description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
-        "or image folder, or --emulate SCENE) through a model file (--model: NLiPsNet from `nlips train`, or a lookup "
-        "table from `nlips lut`) or your own --predictor: normals, depth "
-        "integrated on the dome, frames per second; shown in a window (on a display, with an OpenCV built with a GUI: "
-        "opencv-python in place of the opencv-python-headless installed with nlipscalib), and/or saved with --out. "
-        "Warns when the frames stop looking like the model's calibration.",
+        "or image folder, a folder watched for frames as they land (--watch FOLDER), or --emulate SCENE) through a "
+        "model file (--model: NLiPsNet from `nlips train`, or a lookup table from `nlips lut`) or your own "
+        "--predictor: normals, depth integrated on the dome, frames per second; shown in a window (on a display, with "
+        "an OpenCV built with a GUI: opencv-python in place of the opencv-python-headless installed with nlipscalib), "
+        "and/or saved with --out. Warns when the frames stop looking like the model's calibration.",
     )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train` (or a lookup table from `nlips lut`)")
     p.add_argument(
@@ -90,6 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_device_arguments(p)
     add_source_arguments(p, camera_default="0")
+    add_watch_arguments(p)
     # the names of `nlips infer` (and, for --out, of every other command); the first names stay accepted
     p.add_argument(
         "--max-frames",
@@ -120,9 +123,12 @@ def _nlipsnet(args: argparse.Namespace):
 
 
 def source_name(args: argparse.Namespace) -> str:
-    """What a stream's frames are named after in messages: the emulated sensor, a camera, or the file read."""
+    """What a stream's frames are named after in messages: the emulated sensor, a camera, the file read, or the
+    watched folder (each frame then named by its file: ``cli._watch.frame_files``)."""
     if args.emulate:
         return "emulated sensor"
+    if args.watch:
+        return args.watch
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     return f"camera {camera}" if str(camera).isdigit() or str(camera).startswith("/dev/") else str(camera)
 
@@ -195,12 +201,23 @@ def plugged_response(args: argparse.Namespace, factory: object) -> str:
     return response
 
 
-def _plugged(spec: str, shape: tuple[int, int], factory: object) -> tuple[Predict, None]:
+def _plugged(spec: str, shape: tuple[int, int] | None, factory: object) -> tuple[Predict, None]:
+    """The ``--predictor`` of ``factory`` for frames of ``shape`` (H, W); None (a watched folder without a model:
+    its first file sets the size) makes it at the first frame."""
     from ..core.errors import ConfigError
 
     usage = PREDICTOR_USAGE
     if not callable(factory):
         raise ConfigError(f"--predictor {spec}: {type(factory).__name__} is not callable; give a {usage}")
+    if shape is None:
+        made: list[Predict] = []
+
+        def at_first_frame(frame: np.ndarray) -> LiveResult:
+            if not made:
+                made.append(_plugged(spec, frame.shape[:2], factory)[0])
+            return made[0](frame)
+
+        return at_first_frame, None
     try:
         predict = factory(shape)
     except TypeError as exc:
@@ -250,7 +267,9 @@ def run(args: argparse.Namespace) -> int:
             f"--camera-response is for --predictor: the model {args.model} records its calibration's camera "
             "response; drop --camera-response"
         )
-    emulate_behind_port(args)
+    if not args.watch:  # beside a watched folder, --port nlipsemu://ID is the board alone (as with --camera)
+        emulate_behind_port(args)
+    check_watch_arguments(args)  # --watch beside another source, its folder missing: before the model loads
     check_source_arguments(args)
     check_output_arguments(args, args.out)
     if args.max_frames is not None:
@@ -277,9 +296,9 @@ def _run_held(args: argparse.Namespace) -> int:
             # frames were streamed before it (a camera that stopped sending, a damaged recorded frame, a full disk,
             # the LED board unplugged or failing as the stream closed): their summary comes before the one error
             # line (exit 2); an hours-long stream lost its count and rate
-            _summarise(done["stats"], done["predict"], args)
+            _summarise(done["stats"], done["predict"], args, done.get("watched"))
             raise
-        _summarise(done["stats"], done["predict"], args)
+        _summarise(done["stats"], done["predict"], args, done.get("watched"))
     if term.received:  # `kill`: the summary above, then the "terminated" line and 143, as scripts expect
         from . import terminated
 
@@ -308,6 +327,8 @@ def _open_and_stream(
 
     from ..device.live import SaveSink, StopLive, stream
     from ..report.live import NormalMapPng, WindowSink
+    from . import _watch
+    from ._watch import WatchedFilesSink, frame_files
 
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
@@ -324,22 +345,33 @@ def _open_and_stream(
                 camera_response=predict.predictor.camera_response,
                 tone_curve=tone_curve,
                 stats=done["stats"],
+                shape=predict.predictor.shape,  # a watched folder's files must have the model's size
+                stop=term,
             )
             predict.in_light = getattr(source, "tone_curve", None) is not None
+            if args.watch:  # its warnings name each frame's file, which a user can open
+                predict.frame_name = frame_files(source)
         else:
             factory = _factory(args.predictor)
             response = plugged_response(args, factory)
-            source, before_frame = open_frames(args, stack, loop=window, camera_response=response, stats=done["stats"])
+            source, before_frame = open_frames(
+                args, stack, loop=window, camera_response=response, stats=done["stats"], stop=term
+            )
             predict, reference_depth = _plugged(args.predictor, source.shape, factory)
         sinks = []
         if args.out:
             sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))
+            if args.watch:  # the frames land in no order their names tell: OUT/frames.tsv names each one's file
+                sinks.append(stack.enter_context(contextlib.closing(WatchedFilesSink(args.out, args.every, source))))
         if window:
             sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.out:
             print(f"{no_window}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
         done["predict"] = predict
         ended["lit_by_board"] = getattr(source, "lit_by_board", False)
+        if args.watch:
+            done["watched"] = source
+            _watch.say_watching(done["watched"], args.existing)
         term.arm()
         stream(
             source,
@@ -354,10 +386,12 @@ def _open_and_stream(
         ended["streamed"] = True
 
 
-def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:
+def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace, watched: object = None) -> None:
     """The stream's summary line (stderr), where --out put its maps (its folder alone on stdout, as ``nlips infer``
-    says it), and how many frames differed from the calibration (a warning)."""
+    says it), how many frames differed from the calibration (a warning), and how many files a watched folder
+    (``watched``) skipped."""
     from ..progress import print_result, say
+    from ._watch import say_skipped
 
     say(stats.summary())
     if args.out and stats.frames:
@@ -366,3 +400,4 @@ def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> 
     watch = sys.modules.get("nlipscalib.learn.watch")  # not imported: an NLiPsNet-free stream, nothing to report
     if watch is not None and isinstance(predict, watch.MismatchWatch):
         predict.report()
+    say_skipped(watched)

@@ -1,6 +1,6 @@
 """A folder watched for new frames: each image file read once it has landed whole, in the order they land
-(``nlips infer MODEL --watch FOLDER``: a lab's camera software, or another machine over a shared folder, writes frames
-there as they come).
+(``nlips infer MODEL --watch FOLDER``, ``nlips live --watch FOLDER``: a lab's camera software, or another machine over a
+shared folder, writes frames there as they come).
 
 File events come from ``watchdog`` (inotify on Linux, FSEvents on macOS, ReadDirectoryChangesW on Windows; its
 polling observer on a network or VM-shared file system, whose writes made elsewhere raise no local event). A file is
@@ -113,7 +113,8 @@ class WatchedFolder(FrameSource):
     Parameters
     ----------
     folder : the folder watched (not its subfolders)
-    shape : (H, W) the frames must have (the model's): another size is skipped with a warning
+    shape : (H, W) the frames must have (the model's): another size is skipped with a warning; None: the first image
+        read sets it (a ``--predictor`` stream, which has no model to go by)
     existing : "skip" (default) the images already there at the start, or "infer" them first, in name order
     poll : list the folder every :data:`POLL_S` instead of waiting for the system's file events; None: by itself on
         a network or VM-shared file system (:func:`network_file_system`), events elsewhere
@@ -123,6 +124,10 @@ class WatchedFolder(FrameSource):
     settle_s : :data:`SETTLE_S` unless given
 
     Raises CaptureError, one line naming it, when ``folder`` is not a folder.
+
+    Read on the stream's thread, not ahead on another (``device.live.ReadAhead``): a reader thread a file ahead gained
+    neither frame rate nor latency (benchmarks/RESULTS.md, s39-livewatch), and a wait for a file that never comes would
+    keep it from being joined.
     """
 
     bit_depth = 16
@@ -130,7 +135,7 @@ class WatchedFolder(FrameSource):
     def __init__(
         self,
         folder: str | Path,
-        shape: tuple[int, int],
+        shape: tuple[int, int] | None,
         existing: str = "skip",
         poll: bool | None = None,
         tone_curve: np.ndarray | None = None,
@@ -146,7 +151,8 @@ class WatchedFolder(FrameSource):
             raise CaptureError(f"{self.folder}: not a folder (--watch takes the folder the frames are written into)")
         if existing not in EXISTING:
             raise CaptureError(f"existing must be one of {', '.join(EXISTING)}, got {existing!r}")
-        self._shape = (int(shape[0]), int(shape[1]))
+        self._shape = None if shape is None else (int(shape[0]), int(shape[1]))
+        self._size_of = "the model's frames are"  # whose size the frames must have, for the warning
         self.tone_curve, self.stop, self.settle_s = tone_curve, stop, float(settle_s)
         self.current: Path | None = None
         """The file of the frame :meth:`read` returned last."""
@@ -170,7 +176,8 @@ class WatchedFolder(FrameSource):
         """Whether the folder is listed every :data:`POLL_S` (no file events)."""
 
     @property
-    def shape(self) -> tuple[int, int]:
+    def shape(self) -> tuple[int, int] | None:
+        """(H, W) of the frames; None until the first image is read when none was given."""
         return self._shape
 
     # ------------------------------------------------------------------ setting up
@@ -365,11 +372,13 @@ class WatchedFolder(FrameSource):
             self.skipped += 1
             self._warnings["that cannot be read"](f"{exc}; skipped, the watch goes on", path)
             return None
+        if self._shape is None:  # no model to go by: the first image read sets the stream's size
+            self._shape, self._size_of = frame.shape[:2], f"the stream's first frame ({os.path.basename(path)}) is"
         if frame.shape[:2] != self._shape:
             (h, w), (mh, mw) = frame.shape[:2], self._shape
             self.skipped += 1
             self._warnings["of another size"](
-                f"{path}: image is {w}x{h}, the model's frames are {mw}x{mh}; skipped, the watch goes on", path
+                f"{path}: image is {w}x{h}, {self._size_of} {mw}x{mh}; skipped, the watch goes on", path
             )
             return None
         return frame

@@ -4,6 +4,7 @@ at the end."""
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,9 +34,18 @@ class MismatchWatch:
     ----------
     predictor : learn.infer.Predictor
     name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
+    in_light : bool -- the frames have the calibration's tone curve undone already
+    frame_name : callable (frame index -> str), optional -- what the warnings call a frame: by default
+        ``"NAME frame N"``; a watched folder's stream names its file, ``"FOLDER/NAME.png"`` (``cli._watch.frame_files``)
     """
 
-    def __init__(self, predictor: Predictor, name: str, in_light: bool = False) -> None:
+    def __init__(
+        self,
+        predictor: Predictor,
+        name: str,
+        in_light: bool = False,
+        frame_name: Callable[[int], str] | None = None,
+    ) -> None:
         if not callable(getattr(predictor, "predict_stored", None)):  # a Predictor, or one standing in for it
             raise ShapeError(f"predictor must be a Predictor (Predictor(MODEL)), got {type(predictor).__name__}")
         check_kind(name, str, "name", "what the frames come from, for the messages (a str: 'camera')")
@@ -43,6 +53,9 @@ class MismatchWatch:
         self.in_light = in_light
         """The frames have the calibration's tone curve undone already (a source opened with the predictor's
         ``tone_curve``: ``device.camera.to_stored``), so the predictor does not undo it again."""
+        self.frame_name = frame_name if frame_name is not None else lambda index: f"{self.name} frame {index}"
+        """What the warnings call frame ``index`` (settable once the source is open: ``nlips live`` makes the watch
+        before it opens the source)."""
         self.frames = 0
         self.mismatched = 0
         self.drifted = 0
@@ -56,9 +69,9 @@ class MismatchWatch:
 
     def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
-        result = self.predictor.predict_stored(frame, self.name, in_light=self.in_light)
-        index, self.frames = self.frames, self.frames + 1
-        where = f"{self.name} frame {index}"
+        where = self.frame_name(self.frames)
+        result = self.predictor.predict_stored(frame, where, in_light=self.in_light)
+        self.frames += 1
         why = mismatch_warning(result, where)
         if why:
             self.warning(why, where)

@@ -59,20 +59,20 @@ def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipp
     """A writer drops frames (renamed into place, and one written in place), a note, a frame of another size and a
     damaged one while the watch runs: the three good frames are inferred as the predictor infers those files, named
     in frames.tsv, the others each warned about, and --max-frames ends the stream with its summary."""
-    from nlipscalib.cli import infer
+    from nlipscalib.cli import _watch
     from nlipscalib.learn.infer import Predictor
 
     model, frames = tiny_model
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
     started = threading.Event()
-    say_watching = infer._say_watching
+    say_watching = _watch.say_watching
 
     def said(*args):
         say_watching(*args)
         started.set()
 
-    monkeypatch.setattr(infer, "_say_watching", said)
+    monkeypatch.setattr(_watch, "say_watching", said)
 
     def writer() -> None:
         assert started.wait(GIVE_UP_S)

@@ -196,3 +196,20 @@ def test_a_long_watch_remembers_a_bounded_number_of_files_and_a_rescan_reads_non
         _renamed_into_place(folder, "new.png", 6)
         assert _read_all(source, 1) == [("new.png", 6)]
         assert set(source._landing) <= {str(folder / "new.png")}
+
+
+def test_without_a_shape_the_first_image_read_sets_it_and_another_size_is_skipped_naming_it(folder, caplog):
+    """A --predictor stream has no model to give the size: the first image read sets it."""
+    with WatchedFolder(folder, None) as source:
+        assert source.shape is None
+        _renamed_into_place(folder, "first.png", 1000, shape=(6, 8))
+        _renamed_into_place(folder, "big.png", 2000)
+        _renamed_into_place(folder, "second.png", 3000, shape=(6, 8))
+        with caplog.at_level(logging.WARNING):
+            assert _read_all(source, 2) == [("first.png", 1000), ("second.png", 3000)]
+        assert source.shape == (6, 8) and source.skipped == 1
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any(
+        m.startswith(f"{folder / 'big.png'}: image is 16x12, the stream's first frame (first.png) is 8x6; skipped")
+        for m in warned
+    ), warned
