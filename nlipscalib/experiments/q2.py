@@ -329,6 +329,7 @@ class Q2(Experiment):
     ) -> list[WorkFigure]:
         if not learned or "error" in learned:
             return []
+        from ..learn.dataset import CalibrationDataset
         from . import learning
 
         predict = learning.net_predictor(out, learned["models"]["nlipsnet"], cfg.net.threads)
@@ -340,7 +341,12 @@ class Q2(Experiment):
         views = learning.predicted_views(out, predict, list(titles))
         if not views:
             return []
-        fig.nlipsnet_maps([(titles[n], v) for n, v in views], folder / NORMALS.file, title=NORMALS.caption)
+        # each press's contact AAE as the tables score a split (learn() wrote the dataset in this run)
+        data = CalibrationDataset(Path(out) / learning.DATASET_DIR)
+        scores = learning.press_scores(data, predict, [n for n, _ in views])
+        fig.nlipsnet_maps(
+            [(titles[n], v) for n, v in views], folder / NORMALS.file, title=NORMALS.caption, scores=scores
+        )
         return [NORMALS]
 
 

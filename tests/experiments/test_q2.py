@@ -93,6 +93,34 @@ def test_q2_quick_writes_report_json_and_figures(q2):
         assert (q2 / "q2-custom" / "report" / png).stat().st_size > 1000 and f"({png})" in text
 
 
+def test_the_normals_figure_titles_each_press_with_the_tables_contact_aae(q2, tmp_path, monkeypatch):
+    """q2_normals.png's presses carry their contact AAE vs the labels and vs the truth: the seen split's one press
+    scored as the table scores the split, the unseen presses each their own part of theirs."""
+    from nlipscalib.experiments.q2 import Q2
+    from nlipscalib.report import experiments
+
+    doc = _doc(q2, "q2")
+    drawn = []
+    monkeypatch.setattr(experiments, "nlipsnet_maps", lambda rows, path, **kw: drawn.append((rows, kw)) or path)
+    assert Q2().draw_work_figures(TINY, doc["evaluations"], q2 / "q2-custom", tmp_path, doc["learned"])
+    ((rows, kw),) = drawn
+    assert [title for title, _ in rows] == [
+        f"{role}: {n.split('-p')[0]}" for role in ("seen", "unseen") for n in doc["learned"]["names"][role]
+    ]
+    scores = kw["scores"]
+    assert len(scores) == len(rows) == 3
+    seen = scores[0]
+    for key in ("aae_vs_nlips_deg", "aae_vs_true_deg", "contact_samples"):
+        assert seen[key] == pytest.approx(_score(doc, "seen", METHODS["nlipsnet"], key), rel=1e-6)
+    # the unseen split's samples are its two presses'; their AAEs bracket the split's (a weighted mean of them)
+    unseen = _score(doc, "unseen", METHODS["nlipsnet"])
+    assert sum(s["contact_samples"] for s in scores[1:]) == _score(
+        doc, "unseen", METHODS["nlipsnet"], "contact_samples"
+    )
+    assert min(s["aae_vs_true_deg"] for s in scores[1:]) <= unseen + 1e-6
+    assert max(s["aae_vs_true_deg"] for s in scores[1:]) >= unseen - 1e-6
+
+
 def test_nlipsnet_learns_the_contact(q2):
     """Trained on NLiPs labels, NLiPsNet predicts the seen indenters' contact better than no calibration."""
     doc = _doc(q2, "q2")
