@@ -493,6 +493,8 @@ def test_nlipsnet_sheet_titles_each_press_with_its_contact_aae(tmp_path, monkeyp
         "angular error vs truth",
     ]
     assert titles[1] == [*row, "NLiPsNet normals", "angular error vs truth"]
+    with pytest.raises(ValueError, match="1 scores for 2 rows"):
+        experiments.nlipsnet_maps([("a", view), ("b", view)], tmp_path / "x.png", scores=scores[:1])
 
 
 def test_live_depth_colours_black_off_the_gel():

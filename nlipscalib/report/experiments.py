@@ -209,6 +209,8 @@ def nlipsnet_maps(
         predicted normals' title, ``aae_vs_true_deg`` in the error's (None, NaN or missing: not printed); None: no
         scores
     """
+    if scores is not None and len(scores) != len(rows):
+        raise ValueError(f"nlipsnet_maps: {len(scores)} scores for {len(rows)} rows")
     sheet = []
     for i, (row_title, v) in enumerate(rows):
         shown = np.isfinite(v["error"])
