@@ -463,6 +463,40 @@ def test_nlipsnet_sheet_shows_the_object_as_the_demo_does(tmp_path, monkeypatch)
     np.testing.assert_allclose(sheets[0][0][1][0].image, display_image(rgb))
 
 
+def test_nlipsnet_sheet_titles_each_press_with_its_contact_aae(tmp_path, monkeypatch):
+    """Q2's sheet showed each press without its score: the predicted normals' title says its contact AAE against the
+    NLiPs labels, the error's against the truth, as the report's tables give them (read back from the drawn axes)."""
+    from nlipscalib.report import experiments, figures
+
+    sheets = []
+    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or Path(path))
+    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
+    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
+    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    view = {"rgb": n, "true": n, "estimate": n, "error": np.full((6, 8), 0.4)}
+    scores = [
+        {"aae_vs_nlips_deg": 0.803, "aae_vs_true_deg": 0.754},
+        {"aae_vs_nlips_deg": 12.345, "aae_vs_true_deg": float("nan")},  # no contact with a true normal
+    ]
+    experiments.nlipsnet_maps([("seen: sphere", view), ("unseen: coin", view)], tmp_path / "n.png", scores=scores)
+    experiments.nlipsnet_maps([("seen: sphere", view)], tmp_path / "m.png")  # no scores given: none printed
+    titles = [[ax.get_title() for ax in fig.axes if ax.get_title()] for fig in sheets]
+    row = ["object (tri-colour image)", "ground-truth normals"]
+    assert titles[0] == [
+        *row,
+        "NLiPsNet normals\ncontact AAE vs labels 0.80 deg",
+        "angular error vs truth\ncontact AAE 0.75 deg",
+        *row,
+        "NLiPsNet normals\ncontact AAE vs labels 12.35 deg",
+        "angular error vs truth",
+    ]
+    assert titles[1] == [*row, "NLiPsNet normals", "angular error vs truth"]
+    with pytest.raises(ValueError, match="1 scores for 2 rows"):
+        experiments.nlipsnet_maps([("a", view), ("b", view)], tmp_path / "x.png", scores=scores[:1])
+
+
 def test_live_depth_colours_black_off_the_gel():
     from nlipscalib.report.live import depth_to_rgb
 

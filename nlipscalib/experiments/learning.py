@@ -215,6 +215,28 @@ def score(data: CalibrationDataset, predictors: dict[str, Predictor], test_sets:
     return rows
 
 
+def press_scores(data: CalibrationDataset, predict: Predictor, names: list[str]) -> list[dict]:
+    """Each press's AAE on its own contact samples, as :func:`score` scores a split (one press a split).
+
+    Parameters
+    ----------
+    data : CalibrationDataset
+    predict : callable (pixel (N, 2), rgb (N, 3)) -> (N, 3) unit normals
+    names : press names
+
+    Returns
+    -------
+    list of dicts, one per name: contact_samples, aae_vs_nlips_deg, aae_vs_true_deg (NaN where none scored)
+    """
+    from ..learn.evaluate import sample_scores
+
+    rows = []
+    for name in names:
+        s = data.arrays([name])
+        rows.append(sample_scores(predict(s["pixel"], s["rgb"]), s))
+    return rows
+
+
 def steepness(data: CalibrationDataset, groups: dict[str, list[str]], tilts_deg: tuple[float, ...]) -> list[dict]:
     """How steep the true normals of each group's contact samples are, relative to the undeformed surface.
 

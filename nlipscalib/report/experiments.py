@@ -194,6 +194,7 @@ def nlipsnet_maps(
     vmax: float | None = None,
     method: str = "NLiPsNet",
     title: str = "",
+    scores: list[dict] | None = None,
 ) -> Path:
     """The paper's NLiPsNet figure: per press, the object, true normals, predicted normals, angular error.
 
@@ -204,23 +205,46 @@ def nlipsnet_maps(
     vmax : upper end of every error colour bar, degrees (None: each row's :func:`error_scale`, see
         :func:`row_error_scale`)
     title : what the sheet shows (report.md's caption of it), over the grid
+    scores : per row, the press's contact AAE (degrees) as the report's tables hold it: ``aae_vs_nlips_deg`` in the
+        predicted normals' title, ``aae_vs_true_deg`` in the error's (None, NaN or missing: not printed); None: no
+        scores
     """
+    if scores is not None and len(scores) != len(rows):
+        raise ValueError(f"nlipsnet_maps: {len(scores)} scores for {len(rows)} rows")
     sheet = []
-    for row_title, v in rows:
+    for i, (row_title, v) in enumerate(rows):
         shown = np.isfinite(v["error"])
+        score = scores[i] if scores else {}
         sheet.append(
             (
                 row_title,
                 [
                     Panel("object (tri-colour image)", display_image(v["rgb"])),  # as the demo shows it
                     Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
-                    Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
-                    error_panel("angular error", v["error"], row_error_scale(v["error"], vmax)),
+                    Panel(
+                        f"{method} normals" + _aae_line(score.get("aae_vs_nlips_deg"), " vs labels"),
+                        normals_to_rgb(v["estimate"], shown),
+                    ),
+                    error_panel(
+                        "angular error vs truth" + _aae_line(score.get("aae_vs_true_deg")),
+                        v["error"],
+                        row_error_scale(v["error"], vmax),
+                    ),
                 ],
             )
         )
     contact_sheet(sheet, path, dpi=DPI, caption=NORMALS_KEY, title=title)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
+
+
+def _aae_line(aae_deg: float | None, against: str = "") -> str:
+    """A panel title's second line: a press's contact AAE ("" where it has none: no contact sample scored).
+
+    Why in the titles: the sheet showed each press's maps without its number, and the error map alone (every pixel
+    of the crop, against the truth) does not tell the contact's AAE the report's tables give."""
+    if aae_deg is None or not np.isfinite(aae_deg):
+        return ""
+    return f"\ncontact AAE{against} {aae_deg:.2f} deg"
 
 
 def row_error_scale(error: np.ndarray, vmax: float | None = None) -> float:

@@ -92,3 +92,16 @@ def trained_ratio(calib, tmp_path_factory):
     cfg = TrainConfig(hidden=(32, 32), dropout=0.0, max_epochs=4, batch_size=256, colour_input="ratio")
     train(calib, cfg, out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def trained_ratio_paper(calib, tmp_path_factory):
+    """The paper's NLiPsNet of colour ratios (the default's inputs and reference Gaussian), trained as ``trained``
+    is: the net whose whole-gel depth the full-frame tests bound (``trained_ratio``, 4 epochs of a 32-32 net, fits
+    the flat gel too loosely for that, as a linear net of its size does)."""
+    from nlipscalib.learn.train import TrainConfig, train
+
+    out = tmp_path_factory.mktemp("learn_model_ratio_paper") / "ratio_paper.pt"
+    cfg = TrainConfig(max_epochs=25, patience=8, colour_input="ratio")
+    train(calib, cfg, out, val_names=["press_d"], exclude=[HELD_OUT], progress=False)
+    return out
