@@ -125,7 +125,7 @@ class _Level:
         self.g_prev = self.eta = None
         self._full_step = None
         """The line search's full-step trial depth (the only one :meth:`_expanded` doubles), or None."""
-        self.first_rtol = warm_first_step(opts) if warm else None
+        self.first_rtol = warm_first_step(len(t), opts) if warm else None
         """The first linear solve's tolerance, by AMG alone (:func:`.krylov.warm_first_step`); None: the forcing
         term's, Jacobi tried first."""
         self.tm.lap("init")

@@ -44,16 +44,19 @@ last pass took 3 -> 2 steps on cube1 and sphere1, 5 -> 4 on coin1 (benchmarks/RE
 cube1 at 3 steps."""
 
 
-def warm_first_step(opts: SolverOptions) -> float:
-    """The CG tolerance of a warm-started finest level's first Gauss-Newton step (:data:`WARM_FIRST_RTOL`, not below
-    ``opts.cg_rtol``), solved by AMG alone.
+WARM_FIRST_MAX_ROWS = 200_000
+"""Levels with at least this many rows (a whole 640x480 frame's finest, 307,200) keep the forcing term's first step
+(:func:`warm_first_step`): there the tighter first step moved coin1's whole-frame contact AAE by +0.025 deg (4.710 ->
+4.735; sphere1 -0.004, cube1 unchanged) and the relief presses' by a few hundredths before (s20-jac's ``tight1``), and
+the whole frame meets its time goal without it (benchmarks/RESULTS.md, s30-lastpass)."""
 
-    On every level, whole 640x480 frames included. Those kept the forcing term's first step until the thirty-ninth
-    session (levels of 200,000 rows or more: s30-lastpass measured coin1's whole-frame contact AAE +0.025 deg with the
-    tighter step, at the solver of its day). Measured again on the default twin's one-bounce whole frames
-    (benchmarks/RESULTS.md, s39-speed): sphere1 3 -> 2 Gauss-Newton steps on its last level, 53 -> 22 CG iterations,
-    contact AAE 0.474 -> 0.470 deg; cube1 3 steps, 51 -> 39 CG iterations, 0.415 -> 0.416; coin1 5 steps, 49 -> 39 CG
-    iterations and 2 -> 1 AMG set-ups, 4.063 -> 3.998: less work on each, the relief's AAE now lower, not higher."""
+
+def warm_first_step(rows: int, opts: SolverOptions) -> float | None:
+    """The CG tolerance of a warm-started finest level's first Gauss-Newton step (:data:`WARM_FIRST_RTOL`, not below
+    ``opts.cg_rtol``), solved by AMG alone; None where the level keeps the forcing term's (:data:`WARM_FIRST_MAX_ROWS`
+    rows or more)."""
+    if rows >= WARM_FIRST_MAX_ROWS:
+        return None
     return max(WARM_FIRST_RTOL, opts.cg_rtol)
 
 
@@ -251,9 +254,8 @@ and the contact AAE moved by at most 0.001 deg (benchmarks/RESULTS.md, s22-jac1;
 >= 35,000 rows moved the demo's cube press's 73,980-row auto ROI by 0.03 deg and was reverted). Jacobi is not
 dropped from the first solve: the 0.1 step AMG takes instead is a different step, which moved the relief presses'
 AAE by up to 0.03 deg (s20-jac, s22-jac1) and saved no time even on cube1, whose first Jacobi solve fails at its cap
-(the later steps took more AMG iterations from AMG's first step). A warm-started finest level's first solve (the outer
-loop's last pass, a whole frame's included) is the exception: to 0.01 by AMG alone (:func:`warm_first_step`), it saves
-a whole Gauss-Newton step on the auto ROIs and on the sphere's whole frame, CG iterations on the others."""
+(the later steps took more AMG iterations from AMG's first step). A warm-started finest level's first solve is the
+exception: to 0.01 by AMG it saves a whole Gauss-Newton step (:data:`WARM_FIRST_RTOL`)."""
 
 JACOBI_PATIENCE = 10.0
 """How much slower than predicted a Jacobi solve may converge before it is abandoned (:func:`jacobi_give_up_rate`).
