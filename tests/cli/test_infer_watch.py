@@ -4,13 +4,7 @@ its summary on Ctrl-C and SIGTERM, and one line for each bad input.
 No timing asserts and no sleeps: the writers start once the watch says it is watching, and the tests wait on files;
 a limit (:data:`GIVE_UP_S`) turns a wait that never ends into a failure."""
 
-import os
-import shutil
 import signal
-import sys
-import threading
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,35 +16,13 @@ pytest.importorskip("watchdog")
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core.imageio import read_png16, write_png16  # noqa: E402
 
-from ..processes import as_from_a_terminal  # noqa: E402
-
-GIVE_UP_S = 600.0
-"""A watch still waiting then has missed a file: the test ends it (Ctrl-C) and fails on what it counts. Generous: the
-limit counts the command's start too (importing torch and loading the model took over 120 s on the 2-core VM at load
-29, s38)."""
-REPO = Path(__file__).resolve().parents[2]
+from .watching import drop, main_bounded, tiny_model_frames, watch_until_signalled, writer_once_watching  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
-    """A tiny model of the exact-data sensor (64x48, no rendering; tests/learn/test_infer's) and its presses' frames."""
-    from tests.learn.test_infer import tiny_model_and_presses
-    from tests.learn.test_resume import NAMES
-
-    out, root = tiny_model_and_presses(tmp_path_factory.mktemp("watch_model"))
-    return out, [root / n / "tricolor.png" for n in NAMES]
-
-
-def _drop(folder: Path, name: str, frame: Path) -> None:
-    """A frame renamed into place, as camera programs write them (a hidden temporary first)."""
-    shutil.copyfile(frame, folder / f".{name}.part")
-    os.replace(folder / f".{name}.part", folder / name)
-
-
-def _ctrl_c_after(seconds: float) -> threading.Timer:
-    timer = threading.Timer(seconds, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    return timer
+    """A tiny model of the exact-data sensor and its presses' frames (:func:`.watching.tiny_model_frames`)."""
+    return tiny_model_frames(tmp_path_factory, "watch_model")
 
 
 def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipped(
@@ -59,40 +31,23 @@ def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipp
     """A writer drops frames (renamed into place, and one written in place), a note, a frame of another size and a
     damaged one while the watch runs: the three good frames are inferred as the predictor infers those files, named
     in frames.tsv, the others each warned about, and --max-frames ends the stream with its summary."""
-    from nlipscalib.cli import _watch
     from nlipscalib.learn.infer import Predictor
 
     model, frames = tiny_model
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
-    started = threading.Event()
-    say_watching = _watch.say_watching
 
-    def said(*args):
-        say_watching(*args)
-        started.set()
-
-    monkeypatch.setattr(_watch, "say_watching", said)
-
-    def writer() -> None:
-        assert started.wait(GIVE_UP_S)
-        _drop(watched, "z_first.png", frames[0])
+    def write() -> None:
+        drop(watched, "z_first.png", frames[0])
         (watched / "notes.txt").write_text("not a frame", encoding="utf-8")
         write_png16(watched / "small.png", np.full((24, 32, 3), 30000, np.uint16))
         (watched / "cut.png").write_bytes(frames[1].read_bytes()[:200])
         (watched / "b_second.png").write_bytes(frames[1].read_bytes())  # in place: its close says it is whole
-        _drop(watched, "a_third.png", frames[2])
+        drop(watched, "a_third.png", frames[2])
 
-    thread = threading.Thread(target=writer, daemon=True)
-    thread.start()
-    timer = _ctrl_c_after(GIVE_UP_S)
-    try:
-        code = main(
-            ["--no-progress", "infer", str(model), "--watch", str(watched), "--max-frames", "3", "--out", str(out)]
-        )
-    finally:
-        timer.cancel()
-        thread.join(GIVE_UP_S)
+    thread = writer_once_watching(monkeypatch, write)
+    argv = ["--no-progress", "infer", str(model), "--watch", str(watched), "--max-frames", "3", "--out", str(out)]
+    code = main_bounded(argv, thread)
     stdout, err = capsys.readouterr()
     assert code == 0, err
     assert stdout == f"{out}\n"
@@ -118,13 +73,6 @@ def test_frames_dropped_while_watching_are_inferred_in_order_and_bad_files_skipp
         np.testing.assert_allclose(saved["depth"], expected.depth, atol=1e-4)
 
 
-def _wait_for(what, seconds: float = GIVE_UP_S) -> None:
-    deadline = time.monotonic() + seconds
-    while not what():
-        assert time.monotonic() < deadline, "waited past the test's limit"
-        time.sleep(0.05)
-
-
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_ctrl_c_or_sigterm_ends_a_watch_with_its_summary(tiny_model, tmp_path, sig):
     """The watch waits for files for ever: Ctrl-C ends it as it ends any stream (summary, stream.json, exit 0), and
@@ -132,39 +80,9 @@ def test_ctrl_c_or_sigterm_ends_a_watch_with_its_summary(tiny_model, tmp_path, s
     model, frames = tiny_model
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
-    argv = [
-        sys.executable,
-        "-c",
-        code,
-        "--no-progress",
-        "infer",
-        str(model),
-        "--watch",
-        str(watched),
-        "--out",
-        str(out),
-    ]
-    proc = as_from_a_terminal(argv, env=env)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
-    reader.start()
-    try:
-        _wait_for(lambda: any(line.startswith("watching ") for line in lines) or proc.poll() is not None)
-        assert proc.poll() is None, "".join(lines)
-        for i in range(2):
-            _drop(watched, f"f{i}.png", frames[i])
-        tsv = out / "frames.tsv"
-        _wait_for(lambda: tsv.is_file() and len(tsv.read_text(encoding="utf-8").splitlines()) == 3)
-        proc.send_signal(sig)
-        proc.wait(GIVE_UP_S)
-    finally:
-        proc.kill()
-        proc.wait()
-        reader.join(10)
-    err = "".join(lines)
-    assert proc.returncode == (0 if sig == signal.SIGINT else 128 + signal.SIGTERM), err
+    argv = ["--no-progress", "infer", str(model), "--watch", str(watched), "--out", str(out)]
+    returncode, err = watch_until_signalled(argv, watched, out, frames[:2], sig)
+    assert returncode == (0 if sig == signal.SIGINT else 128 + signal.SIGTERM), err
     assert "2 frames in" in err and f"saved: 2 of 2 frames' normals and depth in {out}" in err, err
     assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 2
     if sig == signal.SIGTERM:

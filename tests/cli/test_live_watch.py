@@ -5,13 +5,7 @@ for each bad input.
 No timing asserts and no sleeps: the writers start once the watch says it is watching, and the tests wait on files;
 a limit (:data:`GIVE_UP_S`) turns a wait that never ends into a failure."""
 
-import os
-import shutil
 import signal
-import sys
-import threading
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,69 +14,18 @@ pytest.importorskip("cv2")
 pytest.importorskip("watchdog")
 
 from nlipscalib.cli import main  # noqa: E402
-from nlipscalib.core.imageio import read_png16, write_png16  # noqa: E402
+from nlipscalib.core.imageio import read_png16  # noqa: E402
 
-from ..processes import as_from_a_terminal  # noqa: E402
+from .watching import drop, main_bounded, tiny_model_frames, watch_until_signalled, writer_once_watching  # noqa: E402
 
-GIVE_UP_S = 600.0
-"""A watch still waiting then has missed a file: the test ends it (Ctrl-C) and fails on what it counts. Generous: the
-limit counts the command's start too (importing torch on the loaded 2-core VM)."""
-REPO = Path(__file__).resolve().parents[2]
 FLAT = "tests.device.fakes:flat_predictor"
 
 
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory):
-    """A tiny model of the exact-data sensor (64x48, no rendering; tests/learn/test_infer's) and its presses' frames."""
+    """A tiny model of the exact-data sensor and its presses' frames (:func:`.watching.tiny_model_frames`)."""
     pytest.importorskip("torch")
-    from tests.learn.test_infer import tiny_model_and_presses
-    from tests.learn.test_resume import NAMES
-
-    out, root = tiny_model_and_presses(tmp_path_factory.mktemp("live_watch_model"))
-    return out, [root / n / "tricolor.png" for n in NAMES]
-
-
-def _drop(folder: Path, name: str, frame: Path | np.ndarray) -> None:
-    """A frame renamed into place, as camera programs write them (a hidden temporary first)."""
-    tmp = folder / f".{name}.part"
-    if isinstance(frame, np.ndarray):
-        write_png16(tmp, frame)
-    else:
-        shutil.copyfile(frame, tmp)
-    os.replace(tmp, folder / name)
-
-
-def _writer_once_watching(monkeypatch, write) -> threading.Thread:
-    """``write()`` on a thread of its own once the command says it is watching (``cli._watch.say_watching``)."""
-    from nlipscalib.cli import _watch
-
-    started = threading.Event()
-    say_watching = _watch.say_watching
-
-    def said(*args):
-        say_watching(*args)
-        started.set()
-
-    monkeypatch.setattr(_watch, "say_watching", said)
-
-    def run() -> None:
-        assert started.wait(GIVE_UP_S)
-        write()
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    return thread
-
-
-def _main_bounded(argv: list[str], thread: threading.Thread) -> int:
-    """``nlips ARGV``, ended by Ctrl-C after :data:`GIVE_UP_S` (a failure, not a hang)."""
-    timer = threading.Timer(GIVE_UP_S, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        return main(argv)
-    finally:
-        timer.cancel()
-        thread.join(GIVE_UP_S)
+    return tiny_model_frames(tmp_path_factory, "live_watch_model")
 
 
 def test_live_shows_the_frames_dropped_into_a_watched_folder_and_warnings_name_their_files(
@@ -99,14 +42,14 @@ def test_live_shows_the_frames_dropped_into_a_watched_folder_and_warnings_name_t
     watched.mkdir()
 
     def write() -> None:
-        _drop(watched, "z_first.png", frames[0])
-        _drop(watched, "small.png", np.full((24, 32, 3), 30000, np.uint16))
-        _drop(watched, "black.png", np.zeros((48, 64, 3), np.uint16))
-        _drop(watched, "a_last.png", frames[1])
+        drop(watched, "z_first.png", frames[0])
+        drop(watched, "small.png", np.full((24, 32, 3), 30000, np.uint16))
+        drop(watched, "black.png", np.zeros((48, 64, 3), np.uint16))
+        drop(watched, "a_last.png", frames[1])
 
-    thread = _writer_once_watching(monkeypatch, write)
+    thread = writer_once_watching(monkeypatch, write)
     argv = ["--no-progress", "live", "--model", str(model), "--watch", str(watched), "--no-window"]
-    code = _main_bounded([*argv, "--max-frames", "3", "--out", str(out)], thread)
+    code = main_bounded([*argv, "--max-frames", "3", "--out", str(out)], thread)
     stdout, err = capsys.readouterr()
     assert code == 0, err
     assert stdout == f"{out}\n"
@@ -138,8 +81,8 @@ def test_infer_names_a_watched_frame_unlike_the_reference_by_its_file(
     model, _ = tiny_model
     watched = tmp_path / "incoming"
     watched.mkdir()
-    thread = _writer_once_watching(monkeypatch, lambda: _drop(watched, "dark.png", np.zeros((48, 64, 3), np.uint16)))
-    code = _main_bounded(["--no-progress", "infer", str(model), "--watch", str(watched), "--max-frames", "1"], thread)
+    thread = writer_once_watching(monkeypatch, lambda: drop(watched, "dark.png", np.zeros((48, 64, 3), np.uint16)))
+    code = main_bounded(["--no-progress", "infer", str(model), "--watch", str(watched), "--max-frames", "1"], thread)
     err = capsys.readouterr().err
     assert code == 0, err
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
@@ -154,13 +97,13 @@ def test_a_plugged_predictor_on_a_watched_folder_takes_the_first_frames_size(tmp
     watched.mkdir()
 
     def write() -> None:
-        _drop(watched, "one.png", np.full((12, 16, 3), 1000, np.uint16))
-        _drop(watched, "wide.png", np.full((12, 20, 3), 9000, np.uint16))
-        _drop(watched, "two.png", np.full((12, 16, 3), 3000, np.uint16))
+        drop(watched, "one.png", np.full((12, 16, 3), 1000, np.uint16))
+        drop(watched, "wide.png", np.full((12, 20, 3), 9000, np.uint16))
+        drop(watched, "two.png", np.full((12, 16, 3), 3000, np.uint16))
 
-    thread = _writer_once_watching(monkeypatch, write)
+    thread = writer_once_watching(monkeypatch, write)
     argv = ["--no-progress", "live", "--predictor", FLAT, "--watch", str(watched), "--no-window", "--max-frames", "2"]
-    code = _main_bounded([*argv, "--out", str(out)], thread)
+    code = main_bounded([*argv, "--out", str(out)], thread)
     err = capsys.readouterr().err
     assert code == 0, err
     depth = [float(np.load(out / f"frame_{i:06d}.npz")["depth"][0, 0]) for i in range(2)]
@@ -170,41 +113,16 @@ def test_a_plugged_predictor_on_a_watched_folder_takes_the_first_frames_size(tmp
     assert any(m.startswith(wide) for m in warned), warned
 
 
-def _wait_for(what, seconds: float = GIVE_UP_S) -> None:
-    deadline = time.monotonic() + seconds
-    while not what():
-        assert time.monotonic() < deadline, "waited past the test's limit"
-        time.sleep(0.05)
-
-
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_ctrl_c_or_sigterm_ends_a_live_watch_with_its_summary(tmp_path, sig):
     """The watch waits for files for ever: Ctrl-C ends it with the summary (exit 0), and so does SIGTERM (exit 143
     after the summary), though the stream waits for a file, not inferring."""
     watched, out = tmp_path / "incoming", tmp_path / "out"
     watched.mkdir()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
-    argv = [sys.executable, "-c", code, "--no-progress", "live", "--predictor", FLAT, "--watch", str(watched)]
-    proc = as_from_a_terminal([*argv, "--no-window", "--out", str(out)], env=env)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
-    reader.start()
-    try:
-        _wait_for(lambda: any(line.startswith("watching ") for line in lines) or proc.poll() is not None)
-        assert proc.poll() is None, "".join(lines)
-        for i in range(2):
-            _drop(watched, f"f{i}.png", np.full((12, 16, 3), 1000 * (i + 1), np.uint16))
-        tsv = out / "frames.tsv"
-        _wait_for(lambda: tsv.is_file() and len(tsv.read_text(encoding="utf-8").splitlines()) == 3)
-        proc.send_signal(sig)
-        proc.wait(GIVE_UP_S)
-    finally:
-        proc.kill()
-        proc.wait()
-        reader.join(10)
-    err = "".join(lines)
-    assert proc.returncode == (0 if sig == signal.SIGINT else 128 + signal.SIGTERM), err
+    argv = ["--no-progress", "live", "--predictor", FLAT, "--watch", str(watched), "--no-window", "--out", str(out)]
+    frames = [np.full((12, 16, 3), 1000 * (i + 1), np.uint16) for i in range(2)]
+    returncode, err = watch_until_signalled(argv, watched, out, frames, sig)
+    assert returncode == (0 if sig == signal.SIGINT else 128 + signal.SIGTERM), err
     assert "2 frames in" in err and f"saved: 2 of 2 frames' normals and depth in {out}" in err, err
     if sig == signal.SIGTERM:
         assert err.strip().splitlines()[-1].startswith("nlips live: terminated; the stream stopped"), err
