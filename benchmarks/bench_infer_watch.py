@@ -49,14 +49,19 @@ def _env(tag: str) -> dict:
 
 
 def _run(args: list[str], tag: str, writer=None) -> dict:
-    """One ``nlips`` process: wall s, user+sys s, its stderr; ``writer(start_line_seen)`` runs beside it once the
-    command says it is watching (``--watch``)."""
+    """:func:`run_watched` of this checkout."""
+    return run_watched(args, _env(tag), writer)
+
+
+def run_watched(args: list[str], env: dict, writer=None) -> dict:
+    """One ``nlips`` process: wall s, user+sys s, its stderr; ``writer()`` runs beside it on a thread once the
+    command says it is watching (``--watch``). Shared with bench_watch_read_ahead.py."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "nlipscalib", "--no-progress", *args],
         cwd=tempfile.gettempdir(),
-        env=_env(tag),
+        env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,

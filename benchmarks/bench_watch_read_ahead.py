@@ -21,11 +21,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
-import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -34,7 +31,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-STREAM_RATE = re.compile(r"(\d+) frames in ([0-9.]+) s: ([0-9.]+) fps")
+
+from bench_infer_watch import STREAM_RATE, run_watched  # noqa: E402  (the process harness: one copy)
 
 
 def _writer(frame: Path, folder: Path, n: int, period: float, landed: list[float], clock=time.perf_counter):
@@ -116,35 +114,13 @@ def whole_command(
     landed: list[float] = []
     command = ["live", "--model", str(model), "--no-window"] if live else ["infer", str(model)]
     args = [*command, "--watch", str(folder), "--out", str(out), "--max-frames", str(n)]
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "nlipscalib", "--no-progress", *args],
-        cwd=tempfile.gettempdir(),
-        env=_env(root, tag),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    lines, thread = [], None
-    for line in proc.stderr:
-        lines.append(line)
-        if thread is None and line.startswith("watching "):
-            thread = threading.Thread(target=_writer(frame, folder, n, period, landed, clock=time.time))
-            thread.start()
-    proc.wait()
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if thread is not None:
-        thread.join()
-    if proc.returncode != 0:
-        raise SystemExit(f"nlips {' '.join(args)}: exit {proc.returncode}\n{''.join(lines)}")
-    rate = STREAM_RATE.search("".join(lines))
+    result = run_watched(args, _env(root, tag), _writer(frame, folder, n, period, landed, clock=time.time))
+    rate = STREAM_RATE.search(result["said"])
     saved = [os.stat(out / f"frame_{i:06d}.npz").st_mtime for i in range(n)]
     latencies = [1e3 * (s - w) for s, w in zip(saved, landed)]
     return {
-        "wall": wall,
-        "cpu": after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime,
+        "wall": result["wall"],
+        "cpu": result["cpu"],
         "fps": float(rate.group(3)),
         "latency": statistics.median(latencies),
         "p90": statistics.quantiles(latencies, n=10)[-1],

@@ -463,9 +463,8 @@ def test_nlipsnet_sheet_shows_the_object_as_the_demo_does(tmp_path, monkeypatch)
     np.testing.assert_allclose(sheets[0][0][1][0].image, display_image(rgb))
 
 
-def test_nlipsnet_sheet_titles_each_press_with_its_contact_aae(tmp_path, monkeypatch):
-    """Q2's sheet showed each press without its score: the predicted normals' title says its contact AAE against the
-    NLiPs labels, the error's against the truth, as the report's tables give them (read back from the drawn axes)."""
+def _drawn_sheets(monkeypatch) -> list:
+    """The map sheets the reporting module draws, kept as figures instead of being saved (appended as drawn)."""
     from nlipscalib.report import experiments, figures
 
     sheets = []
@@ -473,8 +472,23 @@ def test_nlipsnet_sheet_titles_each_press_with_its_contact_aae(tmp_path, monkeyp
     monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
     monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
     monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
-    n = np.zeros((6, 8, 3))
+    return sheets
+
+
+def _flat_normals(h: int = 6, w: int = 8) -> np.ndarray:
+    """(h, w, 3) normals all facing the camera (-z)."""
+    n = np.zeros((h, w, 3))
     n[..., 2] = -1.0
+    return n
+
+
+def test_nlipsnet_sheet_titles_each_press_with_its_contact_aae(tmp_path, monkeypatch):
+    """Q2's sheet showed each press without its score: the predicted normals' title says its contact AAE against the
+    NLiPs labels, the error's against the truth, as the report's tables give them (read back from the drawn axes)."""
+    from nlipscalib.report import experiments
+
+    sheets = _drawn_sheets(monkeypatch)
+    n = _flat_normals()
     view = {"rgb": n, "true": n, "estimate": n, "error": np.full((6, 8), 0.4)}
     scores = [
         {"aae_vs_nlips_deg": 0.803, "aae_vs_true_deg": 0.754},
@@ -843,7 +857,7 @@ def test_experiment_figures_are_titled_with_their_report_caption(tmp_path, monke
     """A chart or sheet opened alone (not in report.md) said nothing of what it shows: each is titled with the
     caption report.md gives it. MabsE's axis says what it measures."""
     from nlipscalib.experiments.q1 import Q1
-    from nlipscalib.report import experiments, figures
+    from nlipscalib.report import experiments
 
     charts = _kept_figures(monkeypatch, experiments)
     rows = [
@@ -854,13 +868,8 @@ def test_experiment_figures_are_titled_with_their_report_caption(tmp_path, monke
     figs = Q1().figures(None, rows, [], tmp_path)
     assert [fig.axes[0].get_title() for fig in charts] == [caption for caption, _ in figs]
     assert charts[1].axes[0].get_ylabel() == experiments.MABSE_LABEL == "MabsE in the contact (unitless)"
-    sheets = []
-    monkeypatch.setattr(figures, "save_png", lambda fig, path, dpi: sheets.append(fig) or Path(path))
-    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
-    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
-    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
-    n = np.zeros((6, 8, 3))
-    n[..., 2] = -1.0
+    sheets = _drawn_sheets(monkeypatch)
+    n = _flat_normals()
     experiments.error_maps([("sphere", n, n, np.full((6, 8), 0.4))], tmp_path / "e.png", title="Q1 maps")
     view = {"rgb": n, "true": n, "estimate": n, "error": np.full((6, 8), 0.4)}
     experiments.nlipsnet_maps([("seen: sphere", view)], tmp_path / "n.png", title="Q2 maps")
