@@ -1,4 +1,4 @@
-"""Binary masks: erosion, dilation and connected components (OpenCV).
+"""Binary masks: erosion, dilation, holes and connected components (OpenCV).
 
 OpenCV rather than scipy.ndimage: the same results (ndimage's default 3x3 cross, zeros outside the
 image, 4-connected components), and importing scipy.ndimage cost 0.12 s of every ``nlips solve`` (after
@@ -60,6 +60,27 @@ def dilate(mask: np.ndarray, iterations: int = 1, structure: np.ndarray = CROSS)
     cv2 = _cv2()
     out = cv2.dilate(_u8(mask), structure, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return out.view(bool)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """``mask`` with its holes filled: every off pixel that no 4-connected path of off pixels joins to the image's
+    border (``scipy.ndimage.binary_fill_holes`` with its default cross; OpenCV's flood fill, ~20 times faster on a
+    contact's box).
+
+    Parameters
+    ----------
+    mask : (H, W) bool (or any dtype: nonzero is on) -- image pixels.
+
+    Returns
+    -------
+    (H, W) bool.
+    """
+    cv2 = _cv2()
+    # a frame of off pixels around the image: one flood from its corner reaches every off pixel joined to the border
+    framed = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), np.uint8)
+    framed[1:-1, 1:-1] = _u8(mask)
+    cv2.floodFill(framed, None, (0, 0), 2, flags=4)
+    return framed[1:-1, 1:-1] != 2
 
 
 def components(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,10 +19,14 @@ MIN_CONTACT_PX = 9
 
 
 def patch_steepness(
-    patch: np.ndarray, normals: np.ndarray, reference_normals: np.ndarray, origin: tuple[int, int] = (0, 0)
+    patch: np.ndarray,
+    normals: np.ndarray,
+    reference_normals: np.ndarray,
+    origin: tuple[int, int] = (0, 0),
+    measured: np.ndarray | None = None,
 ) -> tuple[float, float] | None:
     """(equivalent diameter px, tilt deg) of the largest connected component of ``patch``; None when it is smaller
-    than :data:`MIN_CONTACT_PX` or none of its normals is finite.
+    than :data:`MIN_CONTACT_PX` or none of its (measured) normals is finite.
 
     Parameters
     ----------
@@ -32,17 +36,21 @@ def patch_steepness(
     reference_normals : (H, W, 3) float, unit, camera frame -- the undeformed surface's normals.
     origin : (row, column) int, px -- where ``patch`` lies in the image (a contact's bounding box: the components
         are found in it alone, a fraction of the pixels).
+    measured : (h, w) bool, or None -- the pixels of the window whose normals the tilt is taken over (None: all of
+        the component's): the component's size still sets the diameter (``learn.resolution.measure_contact``).
 
     Returns
     -------
     diameter : float, px -- 2 sqrt(area / pi) of the largest 4-connected component.
-    tilt : float, degrees -- 75th percentile over that component of the angle between the normals and the
-        undeformed ones.
+    tilt : float, degrees -- 75th percentile over that component (its ``measured`` pixels) of the angle between
+        the normals and the undeformed ones.
     """
     labels, sizes = masks.components(patch)
     if sizes.size == 0 or sizes.max() < MIN_CONTACT_PX:
         return None
     found = np.flatnonzero(labels == int(np.argmax(sizes)) + 1)
+    if measured is not None:
+        found = found[measured.reshape(-1)[found]]
     rows, cols = np.divmod(found, patch.shape[1])
     at = (rows + origin[0]) * normals.shape[1] + (cols + origin[1])
     # flat indices into the whole image, gathered with np.take: a boolean gather of a window's pixels cost 2.7 ms of

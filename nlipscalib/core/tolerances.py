@@ -181,11 +181,12 @@ UNCALIBRATED_STEEPNESS_FACTOR = 1.5
 """``nlips infer`` warns that a frame's NLiPsNet normals are not to be trusted when its contact (the change rule's
 largest patch, ``learn.change``) turns its predicted normals by more degrees per pixel of its equivalent diameter
 (75th percentile of the tilt over the diameter, ``core.steepness``) than this times the steepest calibration
-press's labels did (recorded at training, ``learn.resolution``), or more than :data:`CHANGED_TILT_PER_PX`.
-Why: the net extrapolates, and smooths like the labels it learned, past the presses it was taught; a margin over
-the steepest press, since one frame's measure is noisier than a press's labels (not measured: the 50-press twin
-calibration reached 0.72 deg/px with two shallow cone presses, above every sphere press tried).
-benchmarks/RESULTS.md (s28-tinynet)."""
+press's labels did (recorded at training by the same measure, ``learn.resolution.measure_contact``), or more than
+:data:`CHANGED_TILT_PER_PX`. Why: the net extrapolates, and smooths like the labels it learned, past the presses it
+was taught; a margin over the steepest press, since one frame's normals are not its labels: Q2 full's 50
+calibration presses through their net read 0.945-1.014 times their recorded figure, a 5-press net's 5 presses
+0.97-1.00 (s39-steepwarn); the 50-press twin calibration reached 0.72 deg/px with two shallow cone presses, above
+every sphere press tried. benchmarks/RESULTS.md (s28-tinynet, s39-steepwarn)."""
 STREAM_CONTACT_CHANGE = 0.03
 """A stream's frame (``nlips infer`` of a camera or video, ``nlips live``) gets the last judged frame's verdict of
 :data:`CHANGED_TILT_PER_PX` (``learn.resolution.StreamSteepness``) instead of its contact being measured again when

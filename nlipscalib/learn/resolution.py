@@ -9,9 +9,11 @@ its slopes flattened by several degrees (s27-unusual: the fast net 5.58 deg on a
 and how far its labels tilt there; at inference, :func:`steepness_warning` compares each frame's changed region and
 predicted normals with that and with the solve's rule, measured on the changed region
 (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`).
-Both use the change rule's region (:mod:`.change`), the same at training and at inference. A lookup table's results
-are judged alike (it is fitted on the same smoothed labels and colours) and worded as its own (:func:`model_words`):
-a table resolves what its bins resolve.
+Both use the change rule's region (:mod:`.change`), the same at training and at inference, and one measure of it
+(:func:`measure_contact`): a calibration press's two figures differ by its normals alone, labels against the model's
+(Q2 full's 50 presses: the frame's 0.945-1.014 times the recorded). A lookup table's results are judged alike (it
+is fitted on the same smoothed labels and colours) and worded as its own (:func:`model_words`): a table resolves
+what its bins resolve.
 """
 
 from __future__ import annotations
@@ -42,9 +44,35 @@ INFO_KEY = "contacts"
 against the calibration then, the rule only)."""
 
 
+def measure_contact(
+    region: np.ndarray, normals: np.ndarray, reference_normals: np.ndarray, origin: tuple[int, int] = (0, 0)
+) -> tuple[float, float] | None:
+    """(equivalent diameter px, tilt deg) of a contact: the one measure a calibration press is recorded by
+    (:func:`press_contact`, its labels) and a frame is judged by (:func:`judge_steepness`, the model's normals), so
+    that the two cannot drift apart; None without a contact (:func:`nlipscalib.core.steepness.patch_steepness`).
+
+    The region's holes are filled, its :data:`RIM_PX` rim taken off, and the largest patch left measured: its size
+    the diameter, the tilt over its pixels of ``region`` alone. Why the holes: a calibration press's region is its
+    contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and taking
+    the rim off each such hole cut the steep relief around it away: Q2's coin measured 173 px / 16.9 deg (0.097
+    deg/px) on its labels against 190 px / 21.0 deg (0.110) with the same labels on the change rule's whole region
+    (benchmarks/RESULTS.md, s39-steepwarn).
+
+    Parameters
+    ----------
+    region : (h, w) bool -- the contact's pixels (the change rule's changed pixels, or a press's contact samples)
+        in the window of the image whose first row and column are ``origin``.
+    normals : (H, W, 3) float, unit, camera frame -- the whole image's normals (any value outside ``region``).
+    reference_normals : (H, W, 3) float, unit, camera frame -- the undeformed surface's normals.
+    origin : (row, column) int, px -- where ``region`` lies in the image.
+    """
+    core = masks.erode(masks.fill_holes(region), RIM_PX)
+    return patch_steepness(core, normals, reference_normals, origin, measured=region)
+
+
 def press_contact(samples: dict, reference_normals: np.ndarray, labels: str = "nlips") -> tuple[float, float] | None:
     """(equivalent diameter px, tilt deg) of one press's changed region (its shard's ``contact`` samples) and of
-    its labels there (:func:`nlipscalib.core.steepness.patch_steepness`); None without a contact.
+    its labels there (:func:`measure_contact`, as a frame is judged); None without a contact.
 
     Parameters
     ----------
@@ -60,7 +88,7 @@ def press_contact(samples: dict, reference_normals: np.ndarray, labels: str = "n
     patch[v, u] = True
     normals = np.zeros(shape + (3,), np.float32)
     normals[v, u] = samples["true_normal" if labels == "true" else "normal"][keep]
-    return patch_steepness(masks.erode(patch, RIM_PX), normals, reference_normals)
+    return measure_contact(patch, normals, reference_normals)
 
 
 def calibrated_contacts(dataset: CalibrationDataset, names: Iterable[str], labels: str = "nlips") -> dict:
@@ -260,8 +288,8 @@ def judge_steepness(
 ) -> Steepness | None:
     """The frame's contact when its normals are not to be trusted, or None.
 
-    The frame's changed region's largest patch and its predicted normals' tilt
-    (:func:`nlipscalib.core.steepness.patch_steepness`) turn by more degrees per pixel than the model resolves
+    The frame's changed region's largest patch and its predicted normals' tilt (:func:`measure_contact`, the
+    measure the calibration presses were recorded by) turn by more degrees per pixel than the model resolves
     (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`), or than the steepest calibration press did by
     :data:`~nlipscalib.core.tolerances.UNCALIBRATED_STEEPNESS_FACTOR` (``calibrated_per_px``; None: not checked).
 
@@ -279,7 +307,7 @@ def judge_steepness(
         return None
     # the changed pixels' bounding box only: the same patch (outside it nothing changed), a fraction of the pixels
     top, _, left, _ = extent.box
-    found = patch_steepness(masks.erode(changed[extent.slices()], RIM_PX), normals, reference_normals, (top, left))
+    found = measure_contact(changed[extent.slices()], normals, reference_normals, (top, left))
     if found is None:
         return None
     diameter, tilt = found

@@ -1,4 +1,4 @@
-"""core.masks (OpenCV) gives scipy.ndimage's binary erosion, dilation and 4-connected components."""
+"""core.masks (OpenCV) gives scipy.ndimage's binary erosion, dilation, hole filling and 4-connected components."""
 
 import numpy as np
 import pytest
@@ -39,6 +39,19 @@ def test_components_match_scipy_ndimage_labels(mask):
     assert ((labels > 0) == mask).all()
     empty_labels, empty_sizes = masks.components(np.zeros((4, 5), bool))
     assert len(empty_sizes) == 0 and not empty_labels.any()
+
+
+def test_holes_are_filled_as_scipy_ndimage_fills_them(mask):
+    holed = ~mask  # the blobs' complement: holes where blobs lie inside, none where they touch the border
+    filled = masks.fill_holes(holed)
+    np.testing.assert_array_equal(filled, ndimage.binary_fill_holes(holed))
+    assert (filled & ~holed).any() and filled.dtype == bool
+    ring = np.zeros((9, 9), bool)
+    ring[2:7, 2:7], ring[4, 4] = True, False
+    assert masks.fill_holes(ring)[4, 4] and not masks.fill_holes(ring)[0, 0]
+    open_ring = ring.copy()
+    open_ring[4, 2:5] = False  # a channel of off pixels to the outside: no hole
+    np.testing.assert_array_equal(masks.fill_holes(open_ring), open_ring)
 
 
 def test_sample_grid_is_the_coarsest_regular_grid_with_enough_pixels():

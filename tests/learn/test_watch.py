@@ -146,17 +146,17 @@ def _press(cx: float, cy: float, radius: float) -> np.ndarray:
 
 
 def _counting(monkeypatch) -> list:
-    """Counts the contacts measured (``core.steepness.patch_steepness`` as ``learn.resolution`` calls it)."""
+    """Counts the contacts measured (``learn.resolution.measure_contact`` as ``judge_steepness`` calls it)."""
     from nlipscalib.learn import resolution
 
     calls = []
-    measure = resolution.patch_steepness
+    measure = resolution.measure_contact
 
-    def counted(*args):
+    def counted(*args, **kwargs):
         calls.append(1)
-        return measure(*args)
+        return measure(*args, **kwargs)
 
-    monkeypatch.setattr(resolution, "patch_steepness", counted)
+    monkeypatch.setattr(resolution, "measure_contact", counted)
     return calls
 
 
