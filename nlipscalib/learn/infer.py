@@ -204,10 +204,12 @@ class Predictor:
 
     def _warm_up(self) -> None:
         """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
+        if self._frame_graph is not None:  # onnxruntime plans its first run; the rest without PyTorch's network
+            empty = np.zeros(self.shape + (3,), np.uint16)
+            self._full(empty, stored=True, normals=self._frame_graph(empty))
+            return
         if self._full is not None:
             self._full.warm_up()
-            if self._frame_graph is not None:  # onnxruntime plans its first run
-                self._frame_graph(np.zeros(self.shape + (3,), np.uint16))
             return
         self._run(np.zeros((2, 5), np.float32))
         if self.geo is not None:
