@@ -1141,7 +1141,10 @@ def still_provenance(settings: dict, inputs: dict) -> dict:
     from ..core.libraries import INFER_LIBRARIES, library_versions
     from ..core.reconstruction import provenance_key
 
-    libraries = library_versions(INFER_LIBRARIES.get(settings["backend"], ("numpy",)))
+    names = INFER_LIBRARIES.get(settings["backend"], ("numpy",))
+    if settings.get("full_frame") and "torch" not in names:  # the full-frame graph's normals, integrated by PyTorch
+        names = (*names, "torch")
+    libraries = library_versions(names)
     key = provenance_key(settings, inputs, libraries)
     code = code_fingerprint()
     return {

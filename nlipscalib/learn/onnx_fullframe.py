@@ -371,13 +371,13 @@ def check_full_frame(path: str | Path, model: LoadedModel) -> bytes:
     from .onnx_export import SIZE_SLACK, _graph_difference, onnx_messages
 
     path, hint = Path(path), full_frame_hint(model.path)
+    expected = full_frame_proto(model)  # a model without one (a lookup table, a wide bilateral disc): why, one line
     try:
         size = path.stat().st_size
     except FileNotFoundError:
         raise CaptureError(f"{path}: the full-frame ONNX graph of {model.path} is missing: {hint}") from None
     except OSError as exc:
         raise CaptureError(f"{path}: full-frame ONNX graph cannot be read ({exc.strerror or exc})") from None
-    expected = full_frame_proto(model)  # a model without one (a lookup table, a wide bilateral disc): why, one line
     if size > expected.ByteSize() + SIZE_SLACK:  # checked before it is read
         raise CaptureError(f"{path}: {size} bytes, more than the full-frame graph of {model.path} holds: {hint}")
     try:

@@ -122,3 +122,30 @@ def test_a_missing_graph_with_backend_onnx_says_how_to_make_it(trained, twin_pre
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert "net.frame.onnx" in err[0] and "missing" in err[0] and f"nlips export {model} --full-frame" in err[0], err
+
+
+def test_a_foreign_graph_under_the_models_digest_is_refused_before_onnxruntime_reads_it(
+    trained, trained_ratio, twin_presses, tmp_path, capsys
+):
+    """Another model's graph whose metadata names this model's digest (edited by hand, or sent so): compared with
+    the graph this model's export writes, refused in one line; never run."""
+    import onnx
+
+    from nlipscalib.learn.model import load_model
+
+    other = _exported(trained_ratio, tmp_path / "other")
+    folder = tmp_path / "m"
+    folder.mkdir()
+    model = folder / "net.pt"
+    shutil.copy(trained, model)
+    proto = onnx.load(str(other.with_suffix(".frame.onnx")))
+    for entry in proto.metadata_props:
+        if entry.key == "model_digest":
+            entry.value = load_model(model).digest
+    onnx.save(proto, str(folder / "net.frame.onnx"))
+    capsys.readouterr()
+    args = ["infer", str(model), str(twin_presses / HELD_OUT), "--full-frame", "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "net.frame.onnx" in err[0] and "not the full-frame graph of" in err[0], err
