@@ -149,3 +149,40 @@ def test_a_foreign_graph_under_the_models_digest_is_refused_before_onnxruntime_r
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert "net.frame.onnx" in err[0] and "not the full-frame graph of" in err[0], err
+
+
+def test_every_kind_of_frame_of_a_tone_curve_camera_gets_the_pytorch_normals(trained, twin_presses, tmp_path):
+    """A model of an sRGB camera: the graph undoes the curve itself, so a stored frame goes in as the camera encoded
+    it, and a frame whose curve the reader undid (a stream's), a linear one (a press's) and one refreshed by an aged
+    sensor's reference (its gain) are stored again with the curve first; each gives PyTorch's full-frame normals."""
+    from nlipscalib.core.imageio import read_png16
+    from nlipscalib.core.sensor_record import response_table_of
+    from nlipscalib.core.sensor_response import redo_tone_curve
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.model import load_model
+
+    folder = tmp_path / "m"
+    folder.mkdir()
+    payload = torch.load(trained, weights_only=False)
+    payload["sensor"] = payload["sensor"] | {"camera_response": "srgb"}
+    torch.save(payload, folder / "net.pt")
+    model = _exported(folder / "net.pt", tmp_path / "srgb")
+    table = response_table_of(load_model(model).sensor)
+    in_light = read_png16(twin_presses / HELD_OUT / "tricolor.png")
+    encoded = np.clip(np.rint(redo_tone_curve(in_light, table)), 0, 65535).astype(np.uint16)
+    graph, pytorch = (Predictor(model, backend=b, full_frame=True) for b in ("onnx", "torch"))
+    assert graph.backend == "onnx" and pytorch.backend == "torch"
+    gel = graph.valid
+    for predictor in (graph, pytorch):
+        predictor.results = [
+            predictor.predict_stored(encoded),
+            predictor.predict_stored(predictor.in_light(encoded), in_light=True),
+            predictor.predict(predictor.linear(encoded)),
+        ]
+        predictor.refresh(predictor.linear(encoded) * np.float32(0.9))  # an aged sensor: 10 % dimmer
+        predictor.results.append(predictor.predict_stored(encoded))
+    for got, want in zip(graph.results, pytorch.results):
+        assert _max_angle(got.normals, want.normals, gel) < ONNX_PARITY_DEG
+        assert np.abs(got.depth[gel] - want.depth[gel]).max() < 1e-3
+    # the refresh's gain reached the graph's input: its normals moved with PyTorch's
+    assert _max_angle(graph.results[3].normals, graph.results[0].normals, gel) > 10 * ONNX_PARITY_DEG
