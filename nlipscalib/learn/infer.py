@@ -70,7 +70,8 @@ class Frame:
     seconds: dict
     """Time of each step of the predictor's call, s: linearise (a stored frame's, :meth:`Predictor.predict_stored`),
     change, network, integrate, check (the exposure of a frame unlike the calibration's), and total: the whole call
-    (the device path, :mod:`.fullframe`: upload, compute, download, check, total)."""
+    (the device path, :mod:`.fullframe`: upload, compute, download, check, total; network first with the
+    full-frame graph, onnxruntime's run)."""
     brightness: float = 1.0
     """Median brightness on the gel over the reference frame's, at least 0 (a frame below the calibration's dark frame
     is 0, not negative); measured only for a frame that differs over most of the gel (:func:`mismatch_warning`), else
@@ -97,7 +98,8 @@ class Predictor:
     ----------
     model_path : the model file (.pt) from ``nlips train``
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
-        ``nlips train``)
+        ``nlips train``; with ``full_frame`` on the CPU, "onnx" (and "auto" when it is there) the full-frame graph
+        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
         torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
