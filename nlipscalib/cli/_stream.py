@@ -434,8 +434,9 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         "--full-frame",
         action="store_true",
         help="the network's normals on every gel pixel and depth over the whole gel, not only where the frame "
-        "changed (meant for a GPU: on a CPU about 10x slower than the default; not for a lookup table, which runs on "
-        "the changed pixels)",
+        "changed (meant for a GPU: on a CPU about 10x slower than the default; there the normals come from "
+        "MODEL.frame.onnx, `nlips export MODEL --full-frame`, when it is beside the model or with --backend onnx; "
+        "not for a lookup table, which runs on the changed pixels)",
     )
 
 

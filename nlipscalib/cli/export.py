@@ -13,8 +13,6 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:  # named in hints only: torch is imported when a model is exported
     from ..learn.model import LoadedModel
 
-FULL_FRAME_SUFFIX = ".frame.onnx"
-"""``--full-frame``'s file beside its model: MODEL.frame.onnx."""
 CHECK_PIXELS = 20000
 """At most this many of the reference frame's gel pixels check the export."""
 
@@ -49,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import CaptureError, ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
+    from ..learn.onnx_fullframe import FULL_FRAME_SUFFIX
     from ..learn.publish import model_files_held
     from ..progress import print_result, say
     from .folders import names_a_folder

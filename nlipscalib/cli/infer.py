@@ -108,9 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--backend",
         choices=("auto", "torch", "onnx", "onnx-int8"),
         default="auto",
-        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch; an "
-        ".onnx that is not the model's own export is refused; onnx-int8: dynamic int8 quantisation, faster for "
-        "large nets, ~0.05 deg)",
+        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, MODEL.frame.onnx "
+        "with --full-frame, else PyTorch; an .onnx that is not the model's own export is refused; onnx-int8: "
+        "dynamic int8 quantisation, faster for large nets, ~0.05 deg)",
     )
     p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
     p.add_argument("--ply", action="store_true", help="also write a PLY point cloud per frame")
@@ -1141,7 +1141,10 @@ def still_provenance(settings: dict, inputs: dict) -> dict:
     from ..core.libraries import INFER_LIBRARIES, library_versions
     from ..core.reconstruction import provenance_key
 
-    libraries = library_versions(INFER_LIBRARIES.get(settings["backend"], ("numpy",)))
+    names = INFER_LIBRARIES.get(settings["backend"], ("numpy",))
+    if settings.get("full_frame") and "torch" not in names:  # the full-frame graph's normals, integrated by PyTorch
+        names = (*names, "torch")
+    libraries = library_versions(names)
     key = provenance_key(settings, inputs, libraries)
     code = code_fingerprint()
     return {

@@ -84,8 +84,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--backend",
         default="auto",
         choices=("auto", "torch", "onnx", "onnx-int8"),
-        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch; an "
-        ".onnx that is not the model's own export is refused; a lookup table runs on NumPy: leave it at auto)",
+        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, MODEL.frame.onnx "
+        "with --full-frame, else PyTorch; an .onnx that is not the model's own export is refused; a lookup table "
+        "runs on NumPy: leave it at auto)",
     )
     p.add_argument(
         "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"

@@ -108,13 +108,16 @@ class FullFrame:
         if self.box_integrator is not None:  # and the changed pixels' box, which an empty frame never reaches
             self.box_integrator.warm_up(self.ref_normals)
 
-    def __call__(self, tricolor: np.ndarray, stored: bool = False):
+    def __call__(self, tricolor: np.ndarray, stored: bool = False, normals: np.ndarray | None = None):
         """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them; the change rule's pixels also
         with ``keep_reference=False``, where the network's normals are every gel pixel's), stage seconds, mismatch,
         channels (each colour's median over the reference's on the unchanged gel, :func:`.change.channel_ratio`).
 
         ``tricolor`` is (H, W, 3): linear float32, or the stored uint16 values when ``stored`` (converted on the
         device: half the bytes to move). Stage seconds: upload, compute (everything on the device), download.
+        ``normals``: (H, W, 3) float32 unit, 0 off the gel, made elsewhere (the full-frame ONNX graph,
+        :class:`.onnx_fullframe.FrameGraph`): the prefilter and the network are skipped, the change rule and the
+        integration run on them as on the network's (not recorded as a CUDA graph).
 
         On a CUDA device the work up to the normals (the whole integration with ``keep_reference=False``) is a
         recorded graph; the changed pixels' box is solved after it (its shape changes from frame to frame).
@@ -123,15 +126,17 @@ class FullFrame:
         t0 = time.perf_counter()
         with torch.no_grad():
             host = torch.from_numpy(np.ascontiguousarray(tricolor))
-            replay = self._graph(host, stored) if self.device.type == "cuda" else None
+            given = None if normals is None else torch.from_numpy(np.ascontiguousarray(normals, np.float32))
+            replay = self._graph(host, stored) if self.device.type == "cuda" and given is None else None
             if replay is not None:
                 replay.inputs[0].copy_(host)
                 t1 = self._sync()
                 out = replay()
             else:
                 frame = host.to(self.device)
+                given = None if given is None else given.to(self.device)
                 t1 = self._sync()
-                out = self._compute(frame, stored)
+                out = self._compute(frame, stored, given)
             normals, changed, mismatch, points, sampled = out
             changed = changed.cpu().numpy()
             channels = self.change.channels(sampled.cpu().numpy())
@@ -171,22 +176,17 @@ class FullFrame:
             points[box][solved] = solved_points
         return points
 
-    def _compute(self, frame: torch.Tensor, stored: bool):
+    def _compute(self, frame: torch.Tensor, stored: bool, given: torch.Tensor | None = None):
         """(normals (H, W, 3), changed (H, W), mismatch (), points (H, W, 3), sampled (N, 4)) tensors of one frame
         on the device (sampled: :meth:`_ChangeRule.__call__`'s); with ``keep_reference`` the points are the
-        reference's (the box is integrated after, not recorded)."""
+        reference's (the box is integrated after, not recorded). ``given``: the normals, made elsewhere
+        (:meth:`__call__`)."""
         torch = self.torch
         if stored:
             frame = (frame.to(torch.float32) - self.dark) / self.scale
         if self.gain is not None:  # an aged sensor's frame, in the calibration's light (set_gain)
             frame = frame * self.gain
-        filtered = self.filter(frame)
-        if self.input_reference is not None:  # the colours over the reference's (1 off the gel: no division by 0)
-            filtered = filtered / self.input_reference
-        # every gel pixel through the network: on a GPU cheaper than gathering the changed ones (a shape per frame)
-        x = torch.cat([self.x, filtered.reshape(-1, 3)[self.flat]], 1)
-        normals = torch.zeros(self.shape + (3,), dtype=torch.float32, device=self.device)
-        normals.view(-1, 3)[self.flat] = self.net(x)
+        normals = self._network(frame) if given is None else given
         changed, mismatch, sampled = self.change(frame)
         if not self.keep_reference:  # the network's normals everywhere, integrated over the whole gel
             whole = self.integrator(normals, ~changed) if self.integrator is not None else self.ref_points
@@ -196,6 +196,19 @@ class FullFrame:
         # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
         kept = torch.where(changed[..., None], normals, self.ref_normals)
         return kept, changed, mismatch, self.ref_points, sampled
+
+    def _network(self, frame: torch.Tensor):
+        """(H, W, 3) normals of the linear ``frame``: the model's prefilter, a ratio model's division, the network on
+        every gel pixel (0 off the gel)."""
+        torch = self.torch
+        filtered = self.filter(frame)
+        if self.input_reference is not None:  # the colours over the reference's (1 off the gel: no division by 0)
+            filtered = filtered / self.input_reference
+        # every gel pixel through the network: on a GPU cheaper than gathering the changed ones (a shape per frame)
+        x = torch.cat([self.x, filtered.reshape(-1, 3)[self.flat]], 1)
+        normals = torch.zeros(self.shape + (3,), dtype=torch.float32, device=self.device)
+        normals.view(-1, 3)[self.flat] = self.net(x)
+        return normals
 
     def _graph(self, host: torch.Tensor, stored: bool):
         """The frame's work recorded once as a CUDA graph and replayed per frame (one launch instead of ~100 small

@@ -21,7 +21,7 @@ from ..core.camera import Camera, depth_to_points
 from ..core.config import said
 from ..core.errors import PATH, CaptureError, ConfigError, ShapeError, check_flag, check_kind
 from ..core.sensor_record import camera_response_of, response_table_of
-from ..core.sensor_response import CLIPPED_VALUE, linearise, undo_tone_curve
+from ..core.sensor_response import CLIPPED_VALUE, linearise, redo_tone_curve, undo_tone_curve
 from ..core.tolerances import (
     FRAME_BLACK_FRACTION,
     FRAME_BRIGHTNESS_OFF,
@@ -70,7 +70,8 @@ class Frame:
     seconds: dict
     """Time of each step of the predictor's call, s: linearise (a stored frame's, :meth:`Predictor.predict_stored`),
     change, network, integrate, check (the exposure of a frame unlike the calibration's), and total: the whole call
-    (the device path, :mod:`.fullframe`: upload, compute, download, check, total)."""
+    (the device path, :mod:`.fullframe`: upload, compute, download, check, total; network first with the
+    full-frame graph, onnxruntime's run)."""
     brightness: float = 1.0
     """Median brightness on the gel over the reference frame's, at least 0 (a frame below the calibration's dark frame
     is 0, not negative); measured only for a frame that differs over most of the gel (:func:`mismatch_warning`), else
@@ -97,7 +98,8 @@ class Predictor:
     ----------
     model_path : the model file (.pt) from ``nlips train``
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
-        ``nlips train``)
+        ``nlips train``; with ``full_frame`` on the CPU, "onnx" (and "auto" when it is there) the full-frame graph
+        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
         torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
@@ -154,11 +156,15 @@ class Predictor:
         self.prefilter = Prefilter(self.valid, self.model.smoothing_px, self.model.smoothing_colour)
         self.backend = backend
         self._run = self._backend(backend, threads)
-        self._full = None
+        self._full = self._frame_graph = None
         if self.device is not None:  # a GPU, or the whole frame on the CPU
             from .fullframe import FullFrame
 
             self._full = FullFrame(self.model, self.device, self.geo, keep_reference=not full_frame)
+        if self.full_frame and self.backend == "onnx":  # the normals by MODEL.frame.onnx, the rest by .fullframe
+            from .onnx_fullframe import FrameGraph, frame_graph_path
+
+            self._frame_graph = FrameGraph(frame_graph_path(self.model.path), self.model, threads)
         self.gain = None
         """(H, W, 3) float32 or None -- what each frame is multiplied by first (:meth:`refresh`)."""
         if reference is not None:
@@ -200,6 +206,10 @@ class Predictor:
 
     def _warm_up(self) -> None:
         """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
+        if self._frame_graph is not None:  # onnxruntime plans its first run; the rest without PyTorch's network
+            empty = np.zeros(self.shape + (3,), np.uint16)
+            self._full(empty, stored=True, normals=self._frame_graph(empty))
+            return
         if self._full is not None:
             self._full.warm_up()
             return
@@ -215,8 +225,9 @@ class Predictor:
         """The network on the CPU: (N, 5) float32 pixels and filtered linear colours -> (N, 3) unit normals, for a
         model of colour ratios too (its ONNX graph divides the colours by the reference itself, PyTorch's runner
         here: once, either way); None on a GPU or the whole frame (:mod:`.fullframe`)."""
-        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu=self.device is None)
-        if self.device is not None:  # a GPU or the whole frame: PyTorch, run by .fullframe
+        on_cpu = self.device is None or (self.full_frame and self.device.type == "cpu")
+        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu, self.full_frame)
+        if self.device is not None:  # a GPU or the whole frame: run by .fullframe (its normals by the graph: onnx)
             return None
         if backend == "lut":  # a lookup table (learn.lut): NumPy and SciPy, no network runtime
             table = self.model.table
@@ -393,8 +404,10 @@ class Predictor:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it);
         ``in_light``: its tone curve undone already (:meth:`linear`)."""
         if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
-            # the tone curve undone here, the rest converted on the device: half the bytes to move
-            return self._whole_frame(image if in_light else self.in_light(image), stored=True)
+            # the tone curve undone here, the rest converted on the device: half the bytes to move; the frame as
+            # stored kept for the full-frame graph, which undoes the curve itself
+            light = image if in_light else self.in_light(image)
+            return self._whole_frame(light, stored=True, encoded=None if in_light else image)
         t0 = time.perf_counter()
         linear = self.linear(image, where, in_light)
         t1 = time.perf_counter()
@@ -403,9 +416,21 @@ class Predictor:
         frame.seconds = {"linearise": t1 - t0, **frame.seconds, "total": time.perf_counter() - t0}
         return frame
 
-    def _whole_frame(self, tricolor: np.ndarray, stored: bool) -> Frame:
-        """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``)."""
-        normals, depth, points, changed, seconds, mismatch, channels = self._full(tricolor, stored)
+    def _whole_frame(self, tricolor: np.ndarray, stored: bool, encoded: np.ndarray | None = None) -> Frame:
+        """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``); with the full-frame
+        graph (``--backend onnx``) its normals, from ``encoded`` (the frame as the camera stored it) or, without it,
+        ``tricolor`` stored again (:meth:`_encoded`)."""
+        given, network = None, {}
+        if self._frame_graph is not None:
+            t0 = time.perf_counter()
+            if encoded is None or self.gain is not None:
+                encoded = self._encoded(tricolor, stored)
+            given = self._frame_graph(encoded)
+            network = {"network": time.perf_counter() - t0}
+        normals, depth, points, changed, seconds, mismatch, channels = self._full(tricolor, stored, given)
+        if network:  # before the rest, and part of the frame's total
+            seconds = network | seconds
+            seconds["total"] += network["network"]
         frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch, channels=channels)
         if self.full_frame:  # the network's normals on the whole gel; the rule's changed pixels are the contact
             frame.changed, frame.contact = self.valid.copy(), changed
@@ -418,6 +443,20 @@ class Predictor:
         frame.seconds["total"] = seconds["total"] + check
         return frame
 
+    def _encoded(self, tricolor: np.ndarray, stored: bool) -> np.ndarray:
+        """(H, W, 3) uint16: ``tricolor`` (linear float32, or stored values with the tone curve undone) as the camera
+        would have stored it, the gain of :meth:`refresh` applied: the full-frame graph's input, which undoes the
+        calibration's tone curve and subtracts the dark frame itself (a linear camera's frame comes back exactly; a
+        tone curve rounds the brightest values by up to a step of 1/65535)."""
+        linear = self._linearise(tricolor) if stored else tricolor
+        if self.gain is not None:
+            linear = linear * self.gain
+        s = self.model.sensor
+        values = np.clip(np.rint(linear * np.float32(s["white_level"] - s["black_level"]) + self.dark), 0, 65535)
+        if self.tone_curve is not None:
+            values = np.clip(np.rint(redo_tone_curve(values, self.tone_curve)), 0, 65535)
+        return values.astype(np.uint16)
+
 
 def predictor_device(device: str, backend: str, full_frame: bool, flag: bool = False) -> torch.device | None:
     """The torch device a :class:`Predictor` runs on, or None for the CPU without the whole-frame path (no torch
@@ -426,7 +465,14 @@ def predictor_device(device: str, backend: str, full_frame: bool, flag: bool = F
     before the Predictor is made."""
     if device == "cpu" and not full_frame:
         return None
-    if backend not in ("auto", "torch"):
+    # the whole frame on the CPU may take its normals from the full-frame graph (MODEL.frame.onnx, onnxruntime)
+    if full_frame and device == "cpu" and backend == "onnx-int8":
+        raise ConfigError(
+            f"{said('backend', backend, flag)} quantises the per-pixel network: "
+            f"{'--full-frame' if flag else 'full_frame=True'} runs PyTorch ({said('backend', 'torch', flag)}) or the "
+            f"full-frame graph, MODEL.frame.onnx ({said('backend', 'onnx', flag)})"
+        )
+    if backend not in ("auto", "torch") and not (full_frame and device == "cpu" and backend == "onnx"):
         full = f" and {'--full-frame' if flag else 'full_frame=True'} run" if full_frame else " runs"
         raise ConfigError(
             f"{said('backend', backend, flag)} runs on the CPU alone: {said('device', device, flag)}{full} the "
@@ -445,14 +491,14 @@ def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return smooth_on_gel(frame, valid, REFRESH_SMOOTHING_PX)
 
 
-def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) -> str:
+def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True, full_frame: bool = False) -> str:
     """The runtime a :class:`Predictor` of ``model_path`` with ``backend`` runs (what its results record).
 
-    PyTorch off the CPU path (``on_cpu`` False: a GPU or the whole frame, run by :mod:`.fullframe`); "auto" is
-    onnxruntime ("onnx") when the model was exported beside it (MODEL.onnx: ``nlips train`` writes one), else
-    PyTorch; any other as given; "lut" for a lookup table's file (``learn.model.model_method``). Found from the file
-    names and a table's first pickled strings alone, so ``nlips infer`` can tell that a re-run's
-    results are all kept without loading the model or importing either runtime.
+    PyTorch off the CPU (``on_cpu`` False: a GPU, run by :mod:`.fullframe`); "auto" is onnxruntime ("onnx") when the
+    model was exported beside it (MODEL.onnx: ``nlips train`` writes one; with ``full_frame``, MODEL.frame.onnx:
+    ``nlips export MODEL --full-frame``), else PyTorch; any other as given; "lut" for a lookup table's file
+    (``learn.model.model_method``). Found from the file names and a table's first pickled strings alone, so ``nlips
+    infer`` can tell that a re-run's results are all kept without loading the model or importing either runtime.
     """
     from .model import model_method
 
@@ -466,6 +512,10 @@ def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) 
     if not on_cpu:
         return "torch"
     if backend == "auto":
+        if full_frame:
+            from .onnx_fullframe import frame_graph_path
+
+            return "onnx" if frame_graph_path(model_path).is_file() else "torch"
         return "onnx" if Path(model_path).with_suffix(".onnx").is_file() else "torch"
     return backend
 

@@ -412,7 +412,7 @@ def _weights(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
         if values is None:
             got_type = f"{tuple(got.dims)} of type {got.data_type}"
             return f"its weight {tensor.name!r} is {got_type}, the model's {need.shape} of type {tensor.data_type}"
-        if need.dtype.kind == "i":  # pixel indices and pads: exactly the export's
+        if need.dtype.kind in "ib":  # pixel indices, pads and (the full-frame graph's) gel mask: exactly the export's
             if not np.array_equal(values, need):
                 return f"its weight {tensor.name!r} is {values.tolist()}, the export's {need.tolist()}"
             continue
@@ -436,11 +436,11 @@ def _extras(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
 
 
 def _values(tensor: onnx.TensorProto) -> np.ndarray | None:
-    """The float32 or int64 values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or
-    ``float_data`` / ``int64_data``); None when it is of another type or holds another number of values than its dims
-    say."""
+    """The float32, int64 or bool values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or
+    ``float_data`` / ``int64_data`` / ``int32_data``); None when it is of another type or holds another number of values
+    than its dims say."""
     pb = onnx_messages().TensorProto
-    kinds = {pb.FLOAT: ("<f4", "float_data"), pb.INT64: ("<i8", "int64_data")}
+    kinds = {pb.FLOAT: ("<f4", "float_data"), pb.INT64: ("<i8", "int64_data"), pb.BOOL: ("?", "int32_data")}
     if tensor.data_type not in kinds:
         return None
     dtype, field = kinds[tensor.data_type]

@@ -43,11 +43,19 @@ if TYPE_CHECKING:
 FRAME_INPUT, NORMALS_OUTPUT, GEL_OUTPUT = "tricolor", "normals", "gel"
 """Names of the graph's input, (H, W, 3) uint16 stored values, and outputs, (H, W, 3) float32 unit normals (NaN off
 the gel) and (H, W) bool gel mask."""
+FULL_FRAME_SUFFIX = ".frame.onnx"
+"""The full-frame graph's file beside its model: MODEL.frame.onnx (``nlips export MODEL --full-frame``), where
+``nlips infer --full-frame`` and ``nlips live --full-frame`` look for it."""
 MAX_BILATERAL_OFFSETS = 400
 """Most offsets of a bilateral filter's disc the graph unrolls (12 nodes each): 29 at the default sigma of 1 px, 253
 at 3 px, 441 above 11/3 px. The graph's filter grows with them: Q2's 640x480 model took 0.95 s of one CPU core a
 frame at 1 px (349 nodes, the network most of it) and 2.5 s at 3.6 px (377 offsets, 4,177 nodes; load 14,
 s39-onnxfull); beyond, a graph of thousands more nodes and seconds more a frame, so its export is refused."""
+
+
+def frame_graph_path(model_path: str | Path) -> Path:
+    """MODEL.frame.onnx beside the model file ``model_path``."""
+    return Path(model_path).with_suffix(FULL_FRAME_SUFFIX)
 
 
 def full_frame_refusal(model: LoadedModel) -> str | None:
@@ -339,3 +347,80 @@ def full_frame_parity_deg(model: LoadedModel, onnx_path: str | Path, frames: lis
             f"(limit {ONNX_PARITY_DEG})"
         )
     return worst
+
+
+def full_frame_hint(model_path: str | Path) -> str:
+    """How to write the full-frame graph of the model at ``model_path`` (missing, stale or damaged)."""
+    from ..core.shell_words import shell_word
+
+    return f"`nlips export {shell_word(model_path)} --full-frame` writes it; or use --backend torch"
+
+
+def check_full_frame(path: str | Path, model: LoadedModel) -> bytes:
+    """The bytes of the full-frame graph at ``path``, once known to be ``model``'s (before onnxruntime sees them).
+
+    As :func:`.onnx_export.check_export` for the per-pixel export: its size, its metadata's ``model_digest`` (a graph
+    left beside a model trained again is refused, with the command that writes it again), then the graph itself
+    compared with :func:`full_frame_proto` of ``model`` (the same nodes, input and outputs, standard operators, no
+    external data, weights within ``ONNX_WEIGHT_TOL``; its integer initializers and gel mask exactly).
+
+    Raises
+    ------
+    CaptureError naming ``path`` and the first difference found, with the way to write it again.
+    """
+    from .onnx_export import SIZE_SLACK, _graph_difference, onnx_messages
+
+    path, hint = Path(path), full_frame_hint(model.path)
+    expected = full_frame_proto(model)  # a model without one (a lookup table, a wide bilateral disc): why, one line
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise CaptureError(f"{path}: the full-frame ONNX graph of {model.path} is missing: {hint}") from None
+    except OSError as exc:
+        raise CaptureError(f"{path}: full-frame ONNX graph cannot be read ({exc.strerror or exc})") from None
+    if size > expected.ByteSize() + SIZE_SLACK:  # checked before it is read
+        raise CaptureError(f"{path}: {size} bytes, more than the full-frame graph of {model.path} holds: {hint}")
+    try:
+        data = path.read_bytes()
+        proto = onnx_messages().ModelProto.FromString(data)
+    except Exception as exc:  # protobuf's DecodeError (its class depends on the protobuf backend)
+        raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {hint}") from None
+    if not proto.HasField("graph"):
+        raise CaptureError(f"{path}: not a readable ONNX model (no graph): {hint}")
+    if {p.key: p.value for p in proto.metadata_props}.get("model_digest") != model.digest:
+        raise CaptureError(
+            f"{path}: exported from another model than {model.path} (left from before it was trained again?): {hint}"
+        )
+    problem = _graph_difference(proto, expected)
+    if problem:
+        raise CaptureError(f"{path}: {problem}, not the full-frame graph of {model.path}: {hint}")
+    return data
+
+
+class FrameGraph:
+    """onnxruntime session of a model's full-frame graph: a stored frame ((H, W, 3) uint16, encoded with the
+    calibration's camera response) -> (H, W, 3) float32 unit normals, 0 off the gel (as ``learn.infer.Frame`` holds
+    them; the graph's NaN there replaced).
+
+    The file runs only once :func:`check_full_frame` found it to be ``model``'s graph; the session is made from the
+    bytes checked. ``threads``: onnxruntime's intra-op threads (0: its default, the usable cores); it does not spin
+    between frames.
+    """
+
+    def __init__(self, path: str | Path, model: LoadedModel, threads: int = 0):
+        ort = require("onnxruntime", "onnxruntime", "ONNX inference")
+        data = check_full_frame(path, model)
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        try:
+            self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for bad files
+            hint = full_frame_hint(model.path)
+            raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {hint}") from None
+        self.path = Path(path)
+
+    def __call__(self, stored: np.ndarray) -> np.ndarray:
+        normals = self.session.run([NORMALS_OUTPUT], {FRAME_INPUT: np.ascontiguousarray(stored, np.uint16)})[0]
+        return np.nan_to_num(normals, nan=0.0, copy=False)

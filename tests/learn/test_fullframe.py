@@ -540,7 +540,8 @@ def test_infer_full_frame_from_the_command_line(trained, twin_presses, tmp_path,
     "options, message",
     [
         (["--device", "tpu"], "--device 'tpu'"),
-        (["--full-frame", "--backend", "onnx"], "--backend onnx runs on the CPU alone"),
+        (["--full-frame", "--backend", "onnx-int8"], "--backend onnx-int8 quantises the per-pixel network"),
+        (["--full-frame", "--backend", "onnx", "--device", "cuda"], "--backend onnx runs on the CPU alone"),
         (["--device", "cuda"], "--device cuda"),
     ],
 )

@@ -1602,7 +1602,8 @@ def test_a_frame_of_another_kind_than_predict_or_predict_stored_takes_is_one_cle
     [
         ({"device": "tpu"}, "device='tpu': not a torch device", "--device"),
         ({"device": "cuda", "backend": "onnx"}, "backend='onnx' runs on the CPU alone: device='cuda' runs", "--"),
-        ({"full_frame": True, "backend": "onnx"}, "device='cpu' and full_frame=True run", "--"),
+        ({"full_frame": True, "backend": "onnx-int8"}, "full_frame=True runs PyTorch (backend='torch')", "--"),
+        ({"full_frame": True, "backend": "onnx", "device": "cuda"}, "device='cuda' and full_frame=True run", "--"),
     ],
 )
 def test_a_predictors_device_errors_name_its_keywords(tmp_path, options, said, not_said):
