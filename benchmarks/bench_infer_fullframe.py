@@ -24,6 +24,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from nlipscalib.learn.onnx_fullframe import frame_graph_path  # noqa: E402
+
 BACKENDS = ("torch", "onnx")
 
 
@@ -58,6 +62,9 @@ def main() -> None:
     parser.add_argument("--work", default=".", help="folder the commands run in (outside the checkout)")
     args = parser.parse_args()
     args.model, args.work = str(Path(args.model).resolve()), str(Path(args.work).resolve())
+    graph = frame_graph_path(args.model)
+    if not graph.is_file():  # said once here, not by every onnx run's failing command
+        raise SystemExit(f"{graph}: missing (`nlips export {args.model} --full-frame` writes it)")
     runs: dict[str, list[dict]] = {b: [] for b in BACKENDS}
     for round_ in range(args.rounds):
         for backend in BACKENDS:
