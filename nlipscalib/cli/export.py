@@ -105,7 +105,8 @@ def _full_frame(model_path: str, out: Path) -> int:
     say(
         f"{path}: onnxruntime's normal map vs PyTorch's full-frame path: max angular difference {angle:.4f} deg on the "
         "gel (the reference frame, 10 % darker and brighter, and with a synthetic contact); input 'tricolor' "
-        "(H, W, 3) uint16 as the camera stores it, outputs 'normals' (NaN off the gel) and 'gel' (docs/formats.md)"
+        "(H, W, 3) uint16 as the camera stores it, outputs 'normals' (NaN off the gel) and 'gel' (docs/formats.md in "
+        "the nlipscalib source distribution or repository)"
     )
     return 0
 
