@@ -42,7 +42,7 @@ def run_once(args: argparse.Namespace, backend: str, out: Path) -> dict:
     subprocess.run(command, cwd=args.work, env=env, check=True, capture_output=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    stream = json.loads((out / "stream.json").read_text())
+    stream = json.loads((out / "stream.json").read_text(encoding="utf-8"))
     assert stream["backend"] == backend, stream["backend"]
     return {
         "wall_s": wall,

@@ -48,7 +48,7 @@ def test_the_graph_gives_the_pytorch_full_frame_result_of_a_press(fixture, reque
         assert main(["infer", str(model), press, "--full-frame", "--backend", backend, "--out", str(out)]) == 0
         folder = out / HELD_OUT / "nlipsnet"
         results[backend] = np.load(folder / "result.npz")
-        report = json.loads((folder / "report.json").read_text())
+        report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
         assert report["full_frame"] is True
         assert report["backend"] == ("torch" if backend == "torch" else "onnx")
     capsys.readouterr()
@@ -78,7 +78,7 @@ def test_a_stream_through_the_graph_saves_the_pytorch_full_frame_normals(trained
     for backend in ("torch", "onnx"):
         out = tmp_path / f"stream-{backend}"
         assert main(["infer", str(model), pattern, "--full-frame", "--backend", backend, "--out", str(out)]) == 0
-        stream = json.loads((out / "stream.json").read_text())
+        stream = json.loads((out / "stream.json").read_text(encoding="utf-8"))
         assert stream["backend"] == backend and stream["frames"] == 2
         saved[backend] = np.load(out / "frame_000001.npz")
     live = tmp_path / "live"
