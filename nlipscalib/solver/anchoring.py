@@ -58,8 +58,8 @@ x3 over 10 worse in 3 (that box 1.675). The one row x5 lost (+0.014) is a box th
 held (:data:`OUTLINE_HOLD_MIN_SHARE`). Its known cost, the design-LED whole frames' contact depth (76.0 -> 88.1 um on
 the wide view's polar-20 sphere): not the dent's shape (its spread 29.9 -> 30.5 um) nor its level as solved (61.1 um
 RMSE before the rescale, 64.7 with x10 over 4) but :func:`rescale_to_anchors`: the taper flattens the point model's rim
-bulge, so the anchors' median falls in the trough inside it and scales the depth by 1.00138 (1.00058), +17 um at the
-dent (benchmarks/RESULTS.md, s40-outline)."""
+bulge, so the anchors' median falls in the trough inside it and scales the depth by 1.00138 (x10 over 4: 1.00058),
+17 um more at the dent (benchmarks/RESULTS.md, s40-outline)."""
 
 OUTLINE_HOLD_MIN_SHARE = 0.02
 """The outline is held only where its anchored pixels are at least this share of the solve region's own border
@@ -74,9 +74,9 @@ disks); 2 % (7 of a 354-pixel border) lies between none and that. What no share 
 with the design LEDs loses contact AAE held at every share met, 0.085-0.355 (+0.05-0.10 deg; its disks lose none).
 Why: a box's hold is on one side. Unheld, those boxes' depth is off +46-70 um at the held pixels and +88-116 um on the
 far side (the point model's level, its error growing away from the pad's edge); pinned at 0 on one side only, the
-box tilts 40-60 % more the same way and the contact's mean normal error grows along it (+0.08-0.22 deg, the rest of
-its error unchanged). Where the unheld error grows toward the outline (the flat cubes: +129-249 um held side, -19 to
--105 far side) the same hold untilts the box. No truth-free measure of an unheld solve (the held pixels' depth off
+box tilts 33-59 % more the same way and the contact's normals with it (a tilt common to the contact +0.08-0.22 deg,
+the rest -0.04 to +0.06). Where the unheld error grows toward the outline (the flat cubes: +129-223 um held side, -19
+to -105 far side) the same hold untilts the box. No truth-free measure of an unheld solve (the held pixels' depth off
 the reference against the plain anchors', the residual) separates the two (benchmarks/RESULTS.md, s40-outline)."""
 
 
