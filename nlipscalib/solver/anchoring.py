@@ -55,7 +55,11 @@ s39-outline), x30 over 3 rings was worse than x10 over 4 (s38's) in 15 (whole ge
 in 15, **x5 over 6 better in 16** (the design-LED wide sphere 1.686 -> 1.341 deg, the disks' 0.584 -> 0.536), x4 over
 7 better in 16 but past the turn of a dent at the outline (the polar-70 cube's auto box, disks: 1.442 / 1.389 / 1.404),
 x3 over 10 worse in 3 (that box 1.675). The one row x5 lost (+0.014) is a box the outline does not reach, no longer
-held (:data:`OUTLINE_HOLD_MIN_SHARE`)."""
+held (:data:`OUTLINE_HOLD_MIN_SHARE`). Its known cost, the design-LED whole frames' contact depth (76.0 -> 88.1 um on
+the wide view's polar-20 sphere): not the dent's shape (its spread 29.9 -> 30.5 um) nor its level as solved (61.1 um
+RMSE before the rescale, 64.7 with x10 over 4) but :func:`rescale_to_anchors`: the taper flattens the point model's rim
+bulge, so the anchors' median falls in the trough inside it and scales the depth by 1.00138 (x10 over 4: 1.00058),
+17 um more at the dent (benchmarks/RESULTS.md, s40-outline)."""
 
 OUTLINE_HOLD_MIN_SHARE = 0.02
 """The outline is held only where its anchored pixels are at least this share of the solve region's own border
@@ -67,8 +71,13 @@ contact 0.874 -> 0.945 deg, whole gel 0.891 -> 0.963. Over 21 presses' auto boxe
 share from the smallest met, 0.043, up held with gains where the box reaches a dent at the outline (the wide view's
 sphere at polar 57, 9 of 212: whole gel 2.834 -> 2.018 deg unheld -> held with the design LEDs, 1.397 -> 1.066 with
 disks); 2 % (7 of a 354-pixel border) lies between none and that. What no share separates: the flat pad's sphere
-with the design LEDs loses contact AAE held at every share met, 0.085-0.355 (+0.05-0.10 deg; its disks lose none):
-that follows the LED model's level, not the geometry."""
+with the design LEDs loses contact AAE held at every share met, 0.085-0.355 (+0.05-0.10 deg; its disks lose none).
+Why: a box's hold is on one side. Unheld, those boxes' depth is off +46-70 um at the held pixels and +88-116 um on the
+far side (the point model's level, its error growing away from the pad's edge); pinned at 0 on one side only, the
+box tilts 33-59 % more the same way and the contact's normals with it (a tilt common to the contact +0.08-0.22 deg,
+the rest -0.04 to +0.06). Where the unheld error grows toward the outline (the flat cubes: +129-223 um held side, -19
+to -105 far side) the same hold untilts the box. No truth-free measure of an unheld solve (the held pixels' depth off
+the reference against the plain anchors', the residual) separates the two (benchmarks/RESULTS.md, s40-outline)."""
 
 
 def anchor_weights(
