@@ -331,12 +331,14 @@ def reset_at_the_end(port: str | None, stats: LiveStats) -> Iterator[dict]:
     """Word a board reset found as the stream's LED board is switched off (``lights_out_on_exit`` closing with the
     source, after the frames) for ``nlips live`` and ``nlips infer`` alike: the block sets ``["streamed"] = True``
     in the dict it gets once its frames are streamed, and ``["lit_by_board"]`` from its source; a BoardResetError
-    after that is raised again as :func:`reset_at_the_end_error` words it, one before it as it came (the watch's
-    own line during the stream, the driver's as the LEDs were lit).
+    after that is one warning (:func:`reset_at_the_end_note`) and the stream ends as streamed, exit 0; one before it
+    goes on as it came (the watch's own line during the stream, the driver's as the LEDs were lit).
 
-    Why: the driver's line ("... have been restored to the last acknowledged colours; retake any frame captured
-    since the previous command") was false there (the LEDs were switched off again) and said nothing of the stream's
-    frames; ``nlips infer`` said it, ``nlips live`` its own wording."""
+    Why a warning, not an error: every frame was handed on by the watch, read with the board found lit and none dark
+    (a camera's), or was a recording's, not lit by the board, exactly as a reset found during the stream leaves them
+    (exit 0 there); the same reset a frame later exited 2 (s38) though nothing was lost and nothing could be retaken.
+    Before s38 the driver's line ("... have been restored to the last acknowledged colours; retake any frame
+    captured since the previous command") was said, false there (the LEDs were switched off again)."""
     from ..device.errors import BoardResetError
 
     state = {"streamed": False, "lit_by_board": False}
@@ -345,24 +347,23 @@ def reset_at_the_end(port: str | None, stats: LiveStats) -> Iterator[dict]:
     except BoardResetError as exc:
         if not state["streamed"]:
             raise
-        raise reset_at_the_end_error(port, exc, stats, state["lit_by_board"]) from None
+        log.warning("%s", reset_at_the_end_note(port, exc, stats, state["lit_by_board"]))
 
 
-def reset_at_the_end_error(port: str | None, exc: BoardResetError, stats: LiveStats, lit_by_board: bool):
-    """The BoardResetError of a reset found by the LEDs' OFF after the stream's last frame (:func:`reset_at_the_end`):
-    what happened, what became of the frames, that the LEDs are off, and the likely cause. ``lit_by_board``: the
-    frames show the board's light (a camera, watched for dark frames); else a recording's, not lit by it."""
-    from ..device.errors import BROWN_OUT_ADVICE, BoardResetError
+def reset_at_the_end_note(port: str | None, exc: BoardResetError, stats: LiveStats, lit_by_board: bool) -> str:
+    """The warning of a reset found by the LEDs' OFF after the stream's last frame (:func:`reset_at_the_end`): what
+    happened, what became of the frames, that the LEDs are off, and the likely cause. ``lit_by_board``: the frames
+    show the board's light (a camera, watched for dark frames); else a recording's, not lit by it."""
+    from ..device.errors import BROWN_OUT_ADVICE
 
     frames = f"{stats.frames} frame{'s' if stats.frames != 1 else ''}"
     if lit_by_board:
         kept = f"its {frames} were each read with the board found lit and none dark, and are kept"
     else:
         kept = f"its {frames} are recorded ones, not lit by the board, and are kept"
-    return BoardResetError(
+    return (
         f"{port}: the LED board reset as the stream ended, after its last frame ({exc.reason}; found as the LEDs "
-        f"were switched off): {kept}; the LEDs are off; {BROWN_OUT_ADVICE}",
-        exc.reason,
+        f"were switched off): {kept}; the LEDs are off. {BROWN_OUT_ADVICE[0].upper()}{BROWN_OUT_ADVICE[1:]}"
     )
 
 

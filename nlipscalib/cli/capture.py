@@ -34,9 +34,11 @@ from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a session runs
+    from collections.abc import Callable, Iterator
     from pathlib import Path
 
     from ..core.camera import Camera
+    from ..core.errors import CaptureError
     from ..core.leds import Led
     from ..core.response_curve import MeasuredResponse
     from ..core.sensor import SensorDesign
@@ -399,7 +401,9 @@ def _run_device(args: argparse.Namespace):
         linear_gamma=args.camera_response == "linear",  # a declared curve is the camera's own: left as it is
     )
     held = board if board is not None else contextlib.nullcontext()  # closing the board frees its id
+    status = None
     with (
+        _reset_after_the_session(args.port, lambda: status),
         held,
         open_leds(args.port, args.adalight, args.baud) as controller,
         lights_out_on_exit(controller),  # also when the session is stopped (Ctrl-C, SIGTERM) mid-press
@@ -438,7 +442,31 @@ def _run_device(args: argparse.Namespace):
         rig.response_slope = response_slope_of(rig)  # the reference's tone-curve check: the solve's
         interactive = not args.yes and sys.stdin.isatty()
         operator = Operator(interactive=interactive, echo=_tell_operator if interactive else say)
-        return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
+        status = run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
+    return status
+
+
+@contextlib.contextmanager
+def _reset_after_the_session(port: str, status: Callable[[], dict | None]) -> Iterator[None]:
+    """A board reset found by the LEDs' OFF as the session closes (``lights_out_on_exit``), once ``status()`` holds
+    the finished session's record: said in one warning (:func:`nlipscalib.device.session.reset_after_the_session`),
+    and the session ends as captured, exit 0. A reset before that (every attempt at a press cut short) goes on.
+
+    Why: it exited 2 with the driver's "... retake any frame captured since the previous command" though every
+    folder was kept and none could be retaken: each press ends with an acknowledged OFF after its last frame, which a
+    board rebooted before it cannot give (it answers nothing but HELLO), so a reset found later darkened no frame."""
+    from ..device.errors import BoardResetError
+    from ..device.session import reset_after_the_session
+
+    try:
+        yield
+    except BoardResetError as exc:
+        done = status()
+        if done is None:
+            raise
+        import logging
+
+        logging.getLogger(__name__).warning("%s", reset_after_the_session(port, exc, len(done)))
 
 
 def _tell_operator(line: str) -> None:
@@ -586,19 +614,24 @@ def stopped_line(args: argparse.Namespace) -> str:
     return f"session {args.out}: {len(done)} of {presses + 1} folders captured ({names or 'none'}); {resume}"
 
 
-def with_session_line(exc: DeviceError, args: argparse.Namespace) -> DeviceError:
-    """A board or port error that stopped a session with folders already captured, with the session line a
-    Ctrl-C prints (:func:`stopped_line`): what is kept and the folder the same command, run again, starts with.
+def with_session_line(exc: DeviceError | CaptureError, args: argparse.Namespace) -> DeviceError | CaptureError:
+    """A board, port or camera error (or a press that kept moving) that stopped a session with folders already
+    captured, with the session line a Ctrl-C prints (:func:`stopped_line`): what is kept and the folder the same
+    command, run again, starts with.
 
     Why: a board unplugged (or gone silent) at press 5 of 10 ended with "the board disconnected ... and did not
     come back within 5 s" alone; the operator did not know that the four presses were kept and that the same
-    command resumes at press_0005, once the board is back, and started the session again in a new folder."""
+    command resumes at press_0005, once the board is back, and started the session again in a new folder. A camera
+    that stopped sending (or a folder of frames that ran out) said only "camera 0: no frame (the camera stopped)"
+    until s40."""
+    from ..core.errors import CaptureError
     from ..device.session import captured_folders
 
     presses = args.presses if args.presses is not None else DEFAULTS["presses"]
     if not captured_folders(args.out, presses):  # nothing kept: the error alone says what to fix
         return exc
-    return DeviceError(f"{exc}; {stopped_line(args)}")
+    kind = DeviceError if isinstance(exc, DeviceError) else CaptureError
+    return kind(f"{exc}; {stopped_line(args)}")
 
 
 def _warn_beyond(out: Path, status: dict) -> list[str]:
@@ -626,7 +659,7 @@ def _warn_beyond(out: Path, status: dict) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..device.session import claim_session
+    from ..device.session import PressNotCaptured, claim_session
     from .folders import check_not_in_press
 
     emulate_behind_port(args)
@@ -636,7 +669,7 @@ def run(args: argparse.Namespace) -> int:
     with claim_session(args.out):  # another capture writing the folder: refused before the sensor starts
         try:
             status = _run_emulated(args) if args.emulate else _run_device(args)
-        except DeviceError as exc:
+        except (DeviceError, PressNotCaptured) as exc:
             raise with_session_line(exc, args) from exc
     for name, rec in status.items():
         if rec == "kept":

@@ -54,6 +54,13 @@ SESSION_FILE = "session.json"
 """The session's description (camera, LEDs, settings), written when the session starts."""
 
 
+class PressNotCaptured(CaptureError):
+    """A session stopped at a folder it could not capture (the camera ran out of frames or stopped, the object kept
+    moving, a reference with nothing usable): the cause's message. Raised by :func:`run_session` alone, so the command
+    can add what the session kept and where a run again resumes, which it cannot for a refusal before any capture (a
+    folder of another sensor's session)."""
+
+
 def press_name(index: int) -> str:
     """Folder name of press ``index`` (1-based): press_0001."""
     return f"press_{index:04d}"
@@ -360,6 +367,27 @@ def _reset_every_attempt(rig: Rig, folder: str | Path, attempts: int, exc: Excep
     )
 
 
+def reset_after_the_session(port: str, exc: Exception, folders: int) -> str:
+    """What a session says of a board reset found by the LEDs' OFF as it closed, after its last folder was written
+    (``exc``, the BoardResetError; ``folders``, the session's folders, kept or captured): that it darkened no frame,
+    so everything is kept, that the LEDs are off, and the likely cause.
+
+    Why none is at risk: every press ends with an OFF (:func:`capture_frames`) that the board acknowledged after the
+    last frame was read, and a rebooted board answers no command but HELLO (``E7 NOSESSION``, docs/protocol.md), so a
+    reset before that acknowledgement is found there and the press retaken."""
+    from .errors import BROWN_OUT_ADVICE, UNPLUGGED_REASON
+
+    reason = getattr(exc, "reason", "") or str(exc)
+    cable = ", or its USB cable is loose" if reason == UNPLUGGED_REASON else ""
+    kept = f"all {folders} folders are kept" if folders != 1 else "its folder is kept"
+    return (
+        f"{port}: the LED board reset after the session's last press was captured ({reason}; found as the LEDs were "
+        f"switched off at the end): every frame was read before that press's LEDs-off was acknowledged, so none was "
+        f"taken with the LEDs dark and {kept}; the LEDs are off. {BROWN_OUT_ADVICE[0].upper()}{BROWN_OUT_ADVICE[1:]}"
+        f"{cable}"
+    )
+
+
 def run_session(
     rig: Rig, out: str | Path, cfg: SessionConfig, operator: Operator | None = None, progress: bool = False
 ) -> dict[str, dict | str]:
@@ -394,7 +422,10 @@ def run_session(
             operator.reference()
         else:
             operator.press(k, cfg.presses)
-        status[name] = capture_press(rig, folder, cfg, operator, index=k, overwrite=bool(damaged))
+        try:
+            status[name] = capture_press(rig, folder, cfg, operator, index=k, overwrite=bool(damaged))
+        except CaptureError as exc:  # the camera ran out of frames or stopped, the object kept moving, ...
+            raise PressNotCaptured(str(exc)) from exc
         if k > 0:
             operator.release(k)
     return status

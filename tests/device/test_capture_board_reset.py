@@ -153,3 +153,44 @@ def test_a_board_reset_whose_banner_comes_on_the_last_resend_retakes_the_press(t
     assert "press_0001: captured in" in err and "2 attempt(s)" in err
     press = load_press(tmp_path / "s" / "press_0001")
     np.testing.assert_allclose(press.linear(press.led_images), lit(camera), atol=2e-5)
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_board_reset_after_the_last_press_keeps_the_session_and_exits_0(
+    board, fault, tmp_path, capsys, monkeypatch, caplog
+):
+    """Exited 2 with the driver's "... retake any frame captured since the previous command" and the session line
+    "3 of 3 folders captured ...; all kept, nothing left to capture": the reset came after the last press's LEDs-off
+    was acknowledged (a rebooted board answers no command but HELLO, so a reset before it would have been found
+    there and the press retaken), so it darkened no frame; the session's own OFF found it as the command ended."""
+    from nlipscalib.device.session import Operator
+
+    caplog.set_level(logging.WARNING)
+    release = Operator.release
+
+    def released(self, index):
+        release(self, index)
+        if index == 2:  # the last press written whole: the board reboots before the session's LEDs-off
+            FAULTS[fault](board)
+
+    monkeypatch.setattr(Operator, "release", released)
+    camera = PinCamera(board, lambda reads: False)
+    out = tmp_path / "s"
+    assert capture(board, camera, tmp_path, monkeypatch) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == [str(out)]
+    assert "error" not in captured.err, captured.err
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert warnings[-1] == (
+        f"{board.url}: the LED board reset after the session's last press was captured ({REASONS[fault]}; found as "
+        "the LEDs were switched off at the end): every frame was read before that press's LEDs-off was acknowledged, "
+        "so none was taken with the LEDs dark and all 3 folders are kept; the LEDs are off. A board that resets as "
+        "its LEDs light is often browning out (the LEDs powered from the board's 5 V, or a supply too weak: "
+        "firmware/README.md, Wiring, in the nlipscalib source distribution or repository)"
+        + (", or its USB cable is loose" if fault == "unplug" else "")
+    ), warnings
+    assert "press_0002: captured in" in captured.err
+    assert not board.latched().any()  # the LEDs left dark
+    for name in ("reference", "press_0001", "press_0002"):
+        press = load_press(out / name)
+        np.testing.assert_allclose(press.linear(press.led_images), lit(camera), atol=2e-5)

@@ -121,6 +121,39 @@ def test_a_board_lost_mid_session_says_what_is_kept_and_the_same_command_resumes
     assert (out / "press_0002" / "meta.json").is_file()
 
 
+def test_a_camera_that_runs_out_of_frames_mid_session_says_what_is_kept_and_the_same_command_resumes(tmp_path, capsys):
+    """A folder of frames that ran out at press 2 (as a camera that stops sending) ended with "FOLDER: ran out of
+    images after 30 frames" alone: nothing of the reference and press 1 kept, nor that a run again goes on."""
+    board = VirtualBoard(12)
+    frames, out, camera = frames_folder(tmp_path, 1), tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, frames, camera, out, 2)) == 2
+    assert errors(capsys.readouterr().err) == [
+        f"nlips capture: error: {frames}: ran out of images after {2 * SEQUENCE} frames; session {out}: 2 of 3 "
+        "folders captured (reference, press_0001); run again to resume from press_0002"
+    ]
+    assert sorted(p.name for p in out.iterdir()) == ["press_0001", "reference", "session.json"]
+    assert main(capture_args(board.url, frames_folder(tmp_path, 0, name="more"), camera, out, 2)) == 0
+    err = capsys.readouterr().err
+    assert "reference: kept" in err and "press_0001: kept" in err and "press_0002: captured" in err
+
+
+def test_a_press_that_kept_moving_says_what_is_kept(tmp_path, capsys):
+    """The session's line added to "PRESS: the object kept moving ...", as to a board's error."""
+    board = VirtualBoard(12)
+    moving = lambda k: 200 if k == SEQUENCE - 1 else DARK if k == 1 else 150 if k == 0 else 60 + 10 * k  # noqa: E731
+    frames = tmp_path / "frames"
+    frames_folder(tmp_path, 0, name="frames")
+    for i in range(SEQUENCE, 2 * SEQUENCE):  # press 1, its one attempt: the check frame brighter (moved)
+        cv2.imwrite(str(frames / f"{i:04d}.png"), np.full((H, W, 3), moving(i % SEQUENCE), np.uint8))
+    out = tmp_path / "s"
+    args = capture_args(board.url, frames, camera_file(tmp_path), out, 1) + ["--max-retakes", "0"]
+    assert main(args) == 2
+    (line,) = errors(capsys.readouterr().err)
+    assert line.startswith(f"nlips capture: error: {out / 'press_0001'}: the object kept moving (") and line.endswith(
+        f"; session {out}: 1 of 2 folders captured (reference); run again to resume from press_0001"
+    ), line
+
+
 def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path, capsys, monkeypatch, impatient):
     """Reported as "no valid answer to OFF after 4 tries of 1 s each" after 8.9 s: the clean-up's OFF waited its
     own 4 tries after ALL had failed."""
