@@ -44,6 +44,10 @@ last pass took 3 -> 2 steps on cube1 and sphere1, 5 -> 4 on coin1 (benchmarks/RE
 cube1 at 3 steps."""
 
 
+DRIFT_RATE = 0.85
+"""A hierarchy whose CG residual fell by less than this per iteration (over 4 or more) has drifted from the matrix
+(:meth:`Krylov._drifted`)."""
+
 WARM_FIRST_MAX_ROWS = 200_000
 """Levels with at least this many rows (a whole 640x480 frame's finest, 307,200) keep the forcing term's first step
 (:func:`warm_first_step`): there the tighter first step moved coin1's whole-frame contact AAE by +0.025 deg (4.710 ->
@@ -68,10 +72,13 @@ class Krylov:
     smoothed-aggregation AMG hierarchy would cost more to build than the whole solve. Otherwise
     (or once a hierarchy exists) CG preconditioned by AMG V-cycles continues from that iterate. The
     matrix changes little between iterations (weights and shading drift), so the hierarchy is kept
-    and rebuilt only when its convergence factor per CG iteration degrades past 0.85. One exception:
-    a hierarchy made in the level's first solve (where Jacobi failed) is fitted to the second solve's
-    matrix (:meth:`_VCycle.for_matrix`: its aggregates and transfers kept, its level matrices made again
-    by Galerkin products, about a third of a set-up), because the first Gauss-Newton step moves the most.
+    until its convergence factor per CG iteration degrades past :data:`DRIFT_RATE`. A hierarchy is fitted to a
+    later matrix (:meth:`_VCycle.for_matrix`: its aggregates and transfers kept, its level matrices made again
+    by Galerkin products, about a third of a set-up) in two cases: one made in the level's first solve (where
+    Jacobi failed), at the second solve, because the first Gauss-Newton step moves the most; and one that drifted,
+    at the next solve, once per set-up (made again if it drifts after that): what drifts is the level matrices'
+    values, not the aggregates (coin1's whole frame: the fitted hierarchy took the last two steps in the same 4 and
+    7 iterations as a set-up of its own; benchmarks/RESULTS.md, s40-relief).
 
     Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
     its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
@@ -95,6 +102,10 @@ class Krylov:
         self.setups = 0
         self.refreshes = 0
         """Hierarchies fitted to a later solve's matrix (:meth:`_VCycle.for_matrix`), set-ups not counted."""
+        self._fit_next = False
+        """The hierarchy drifted in the last solve: fitted to the next solve's matrix."""
+        self._drift_fitted = False
+        """The hierarchy was fitted after a drift since its set-up: made again if it drifts once more."""
         self.jacobi_rate: float | None = None
         """Residual reduction per iteration of this level's last Jacobi solve, bounded above (1: it failed)."""
 
@@ -122,7 +133,8 @@ class Krylov:
             self.amg = _amg_cycle(Hm)
             self.setups += 1
             self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
-        elif self._amg_solve == 1 and self._amg_matrix() is not Hm:
+            self._drift_fitted = False
+        elif (self._amg_solve == 1 or self._fit_next) and self._amg_matrix() is not Hm:
             # The first step's matrix is the furthest from the later ones (its step moves the depth, the weights
             # and the shading the most): on cube1's whole frame its hierarchy took steps 2 and 3 in 21 and 22 CG
             # iterations, fitted to step 2's matrix 11 and 14 (a set-up of its own at each step: 12 and 11), for
@@ -130,13 +142,23 @@ class Krylov:
             # 0-3 iterations (sphere1, coin1, cube1's step 3), about what it costs (benchmarks/RESULTS.md, s20-amg).
             self.amg = self.amg.for_matrix(_single(Hm))
             self.refreshes += 1
+            self._drift_fitted |= self._fit_next
+            self._fit_next = False
             self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
         x, _, amg_iters = pcg(products, rhs, x, rtol, self.opts.cg_maxiter, self.amg)
         iters = max(amg_iters, 1)
         achieved = float(np.linalg.norm(rhs - products.dot(x))) / max(float(np.linalg.norm(rhs)), 1e-300)
-        if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
-            self.amg = None  # the matrix drifted away from the one the hierarchy was built for
+        if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > DRIFT_RATE:
+            self._drifted()
         return x, jacobi_iters + amg_iters
+
+    def _drifted(self) -> None:
+        """The matrix drifted away from the one the hierarchy's level matrices were made for: fitted to the next
+        solve's matrix, or made again there where it was fitted after a drift already."""
+        if self._drift_fitted:
+            self.amg = None
+        else:
+            self._fit_next = True
 
 
 def pcg(

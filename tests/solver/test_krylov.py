@@ -456,6 +456,43 @@ def test_a_first_solves_hierarchy_is_fitted_to_the_second_solves_matrix(monkeypa
     assert np.linalg.norm(A3 @ x - A3 @ x_true) <= rtol * np.linalg.norm(A3 @ x_true)
 
 
+def test_a_drifted_hierarchy_is_fitted_to_the_next_matrix_once_then_made_again(monkeypatch):
+    """A hierarchy that drifted (its CG residual falling by less than DRIFT_RATE per iteration) has its level matrices
+    made again from the next solve's matrix, its aggregates kept, not a set-up; one that drifts again after such a
+    fit is set up anew at the next solve. Every solve reaches its tolerance."""
+    from nlipscalib.solver.options import SolverOptions
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    monkeypatch.setattr(krylov, "DRIFT_RATE", 0.0)  # every AMG solve of 4 iterations or more counts as drifted
+    matrices = [_weighted_laplacian(40, seed) for seed in range(6)]
+    x_true = np.random.default_rng(3).standard_normal(matrices[0].shape[0])
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=0))
+    counts, kept = [], []
+    for A in matrices:
+        b = A @ x_true
+        x, iters = pcg.solve(A, b, 1e-8)
+        assert iters >= 4 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+        counts.append((pcg.setups, pcg.refreshes))
+        kept.append(pcg.amg is not None)
+    # set up, drifted: fitted at the next solve, drifted again: set up anew at the next, ... (the third solve's
+    # hierarchy is fitted at the fourth although it was not made in the level's first solve)
+    assert counts == [(1, 0), (1, 1), (2, 1), (2, 2), (3, 2), (3, 3)]
+    assert kept == [True, False, True, False, True, False]
+
+
+def test_a_hierarchy_that_keeps_converging_is_not_fitted_after_the_second_solve():
+    """Without a drift (the default DRIFT_RATE, matrices a step apart), the hierarchy is fitted once (to the second
+    solve's matrix) and then kept as it is."""
+    from nlipscalib.solver.options import SolverOptions
+
+    A = _weighted_laplacian(40, 0)
+    steps = [A, (A + 1e-2 * sp.identity(A.shape[0])).tocsr(), (A + 2e-2 * sp.identity(A.shape[0])).tocsr()]
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=0))
+    for M in steps:
+        pcg.solve(M, np.ones(M.shape[0]), 1e-6)
+    assert (pcg.setups, pcg.refreshes) == (1, 1)
+
+
 def test_a_first_solves_hierarchy_is_not_fitted_to_its_own_matrix_again():
     from nlipscalib.solver.options import SolverOptions
 
