@@ -333,7 +333,8 @@ def expanded_step(
     e_start : float
         Energy before the step.
     predicted : float
-        The decrease the Gauss-Newton model predicts for the full step (> 0 for a descent step).
+        The decrease the Gauss-Newton model predicts for the full step (> 0 for a descent step), in the units of
+        the solver's halved gradient and normal matrix: half the model's decrease of the energy (s40-relief).
     ratio : float
         The factor of ``predicted`` the actual decrease must exceed; 0 = never expand.
 

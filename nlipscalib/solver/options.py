@@ -91,13 +91,14 @@ class SolverOptions:
     line_search_steps: int = 8
     """Step halvings tried before a Gauss-Newton step is rejected (energy must not increase)."""
     line_search_expand: float = 4.0
-    """When a full Gauss-Newton step lowers the energy by more than this times the decrease its model predicted,
-    the doubled step is tried too and kept if it lowers the energy further (0 = off). The robust loss's IRLS model
-    overestimates the curvature where residuals sit in the loss's bend: on relief (the default twin's coin presses)
-    the actual decrease ran 4.6-7.7x the prediction in the finest level's linearly converging tail, and the doubled
-    step saved a Gauss-Newton step there (benchmarks/RESULTS.md, s23-gn). 4: the smooth and flat-faced presses'
-    steps stay below it (2.3-2.9x), so they never try it; a doubled step won on every large level where it was
-    tried but one."""
+    """When a full Gauss-Newton step lowers the energy by more than this times the decrease its model predicted, the
+    doubled step is tried too and kept if it lowers the energy further (0 = off). "Predicted" as the solver computes it:
+    half the quadratic model's decrease of the energy, whose gradient and normal matrix the solver holds halved (so 4
+    asks for twice the model's own decrease; the ratios below are in the same units). The robust loss's IRLS model
+    overestimates the curvature where residuals sit in the loss's bend: on relief (the default twin's coin presses) the
+    actual decrease ran 4.6-7.7x the prediction in the finest level's linearly converging tail, and the doubled step
+    saved a Gauss-Newton step there (benchmarks/RESULTS.md, s23-gn). 4: the smooth and flat-faced presses' steps stay
+    below it (2.3-2.9x), so they never try it; a doubled step won on every large level where it was tried but one."""
     shadow_level: float = 0.01
     """Observed intensity below this fraction of the LED image's 99th percentile is shadow: excluded."""
     dead_led_level: float = tolerances.LIT_LEVEL
