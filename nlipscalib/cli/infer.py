@@ -781,7 +781,8 @@ def _settings_before_loading(args: argparse.Namespace) -> dict | None:
 
     if args.device != "cpu" or args.full_frame or not Path(args.model).is_file():
         return None
-    return _settings(args, file_digest(args.model), resolved_backend(args.model, args.backend), "cpu", False)
+    digest = file_digest(args.model)
+    return _settings(args, digest, resolved_backend(args.model, args.backend, digest=digest), "cpu", False)
 
 
 def _look_before_loading(
