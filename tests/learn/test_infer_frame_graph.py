@@ -117,6 +117,7 @@ def test_a_graph_of_another_model_is_skipped_by_auto_and_refused_by_backend_onnx
     assert f"nlips export {model} --full-frame" in said[0], said
     report = json.loads((tmp_path / "auto" / HELD_OUT / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
     assert report["backend"] == "torch" and report["full_frame"] is True
+    capsys.readouterr()  # the run's closing lines
     args = ["infer", str(model), press, "--full-frame", "--backend", "onnx", "--out", str(tmp_path / "onnx")]
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
