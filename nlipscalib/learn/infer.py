@@ -511,8 +511,8 @@ def resolved_backend(
     from before the model was trained again is skipped: :mod:`.exports`); any other as given; "lut" for a lookup
     table's file (``learn.model.model_method``). ``digest``: the model file's (``onnx_export.bytes_digest``, of the
     bytes loaded), read from the file when not given. Found from the file names, a table's first pickled strings
-    and the export's metadata alone (protobuf's messages, ~40 ms), so ``nlips infer`` can tell that a re-run's
-    results are all kept without loading the model or importing either runtime.
+    and the export's recorded digest alone (a few hundred bytes: ``onnx_export.recorded_digest``), so ``nlips
+    infer`` can tell that a re-run's results are all kept without loading the model or importing either runtime.
     """
     from .model import model_method
 
