@@ -102,7 +102,8 @@ class Predictor:
     model_path : the model file (.pt) from ``nlips train``
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
         ``nlips train``; with ``full_frame`` on the CPU, "onnx" (and "auto" when it is there) the full-frame graph
-        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals)
+        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals; "auto" skips an export of another
+        model with one warning, :func:`resolved_backend`)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
         torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
