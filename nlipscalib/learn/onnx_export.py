@@ -78,8 +78,9 @@ def recorded_digest(path: str | Path) -> str | None:
 
     Read by walking the file's top-level protobuf fields (:func:`_top_level_metadata`) and seeking past the graph:
     a few hundred bytes read, no protobuf import. Why not protobuf's parser (:func:`onnx_messages`): importing the
-    messages and parsing a ratio model's 4 MB export cost 25 ms of CPU, 8 % of a ``nlips infer`` re-run that keeps
-    every result (0.30 s of CPU), which reads the digest to choose its runtime before anything loads."""
+    messages and parsing a ratio model's 4 MB export cost 22-26 ms of CPU (a ``nlips infer`` re-run that keeps every
+    result, which reads the digest to choose its runtime before anything loads, takes 0.30 s; the walk 0.02 ms:
+    benchmarks/RESULTS.md, s40-companions)."""
     try:
         with open(path, "rb") as f:
             return _top_level_metadata(f).get("model_digest")
