@@ -109,7 +109,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("auto", "torch", "onnx", "onnx-int8"),
         default="auto",
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, MODEL.frame.onnx "
-        "with --full-frame, else PyTorch; an .onnx that is not the model's own export is refused; onnx-int8: "
+        "with --full-frame, else PyTorch; one of another model (left from before a retrain) is skipped with a warning, "
+        "and refused by --backend onnx; onnx-int8: "
         "dynamic int8 quantisation, faster for large nets, ~0.05 deg)",
     )
     p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
