@@ -19,7 +19,8 @@ Measured, the two checkouts interleaved (``--pairs`` rounds after one warm-up ea
 Run: .venv/bin/python benchmarks/bench_onnx_ratio.py --before /tmp/s38/onnxratio-before --reference /tmp/keep/reference
      --press /tmp/keep/sphere1 --out /tmp/s38/onnxratio-bench [--pairs 5] [--command-pairs 5] [--export-runs 3]
      [--frames 10] [--repeats 5]
-Prints Markdown tables; the results are in benchmarks/RESULTS.md (s38-onnxratio).
+     --network-only | --graphs-alone (the exports already in --out: the network stage, or the ratio graphs alone)
+Prints Markdown tables; the results are in benchmarks/RESULTS.md (s38-onnxratio; the ratio int8 rows s40-companions).
 """
 
 from __future__ import annotations
@@ -202,6 +203,50 @@ def network_only(folder: Path, press: Path, repeats: int) -> None:
                 print(f"| {name} | {side} ({kind}) | {spread(walls, 2)} | {spread(cpus, 2)} | {angle:.2g} |")
 
 
+def graphs_alone(folder: Path, press: Path, repeats: int) -> None:
+    """The ratio model's two graphs alone, float32 and int8 (``OnnxNet``, 1 thread), in one process, the 4 sessions
+    alternating ``repeats`` times: before is given the ratios already divided, so neither side holds NumPy's division
+    (s40-companions: the network stage's int8 medians swung by 20 ms between runs on a loaded machine)."""
+    import numpy as np
+
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import OnnxNet
+
+    loaded = load_press(press)
+    inputs = []
+    predictor = Predictor(folder / "after" / "ratio.pt", backend="torch", threads=1, depth=False)
+    run = predictor._run
+    predictor._run = lambda x: inputs.append(x.copy()) or run(x)
+    predictor.predict(loaded.linear(loaded.tricolor))
+    x = inputs[-1]
+    divided = x.copy()
+    divided[:, 2:] /= load_model(folder / "after" / "ratio.pt").input_reference[
+        x[:, 1].astype(np.intp), x[:, 0].astype(np.intp)
+    ]
+    sessions = {
+        f"ratio {side}, {'int8' if int8 else 'float32'}": (
+            OnnxNet(folder / side / "ratio.onnx", threads=1, int8=int8),
+            divided if side == "before" else x,
+        )
+        for int8 in (True, False)
+        for side in ("before", "after")
+    }
+    times = {name: [] for name in sessions}
+    for net, given in sessions.values():
+        net(given)  # warm-up
+    for _ in range(repeats):
+        for name, (net, given) in sessions.items():
+            t0 = time.process_time()
+            net(given)
+            times[name].append((time.process_time() - t0) * 1e3)
+    print(f"\nThe ratio graphs alone ({len(x)} pixels, 1 thread, {repeats} calls each, alternating), CPU ms\n")
+    print("| graph | CPU ms |\n|---|---|")
+    for name, values in times.items():
+        print(f"| {name} | {spread(values)} |")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--before", type=Path, help="the checkout before the change (a git worktree)")
@@ -215,11 +260,14 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=5, help="frames a round in process (default 5)")
     p.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
     p.add_argument("--network-only", action="store_true", help="the network stage alone, of the exports in --out")
+    p.add_argument("--graphs-alone", action="store_true", help="the ratio graphs alone, of the exports in --out")
     args = p.parse_args()
     if args.worker:
         return worker(args.worker, args.press, args.repeats)
     if args.network_only:
         return network_only(args.out, args.press, args.repeats)
+    if args.graphs_alone:
+        return graphs_alone(args.out, args.press, args.repeats)
     trees = {"before": args.before.resolve(), "after": ROOT}
     args.out.mkdir(parents=True, exist_ok=True)
     made = make_models(args.reference, args.out)

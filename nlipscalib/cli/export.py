@@ -94,13 +94,20 @@ def run(args: argparse.Namespace) -> int:
 
 def _full_frame(model_path: str, out: Path) -> int:
     """``--full-frame``: the standalone graph of the whole frame (``learn.onnx_fullframe``), checked against the
-    PyTorch full-frame path before it takes its name. Not one of a training's files (inference never reads it), so
-    written without the model's lock."""
+    PyTorch full-frame path before it takes its name. Beside the model (MODEL.frame.onnx, which `nlips infer
+    --full-frame` runs and `nlips train` makes again when it replaces the model) it is one of a training's files:
+    read and written under the model's claim (``learn.publish``), as the per-pixel export, so that the graph of a
+    model a training replaced meanwhile never lands beside the new one."""
+    from contextlib import nullcontext
+
     from ..learn.model import load_model
-    from ..learn.onnx_fullframe import export_full_frame
+    from ..learn.onnx_fullframe import export_full_frame, frame_graph_path
+    from ..learn.publish import model_files_held
     from ..progress import print_result, say
 
-    path, angle = export_full_frame(load_model(model_path), out)  # a model it cannot hold: one line, nothing written
+    beside = out.resolve() == frame_graph_path(Path(model_path).resolve())
+    with model_files_held(model_path) if beside else nullcontext():
+        path, angle = export_full_frame(load_model(model_path), out)  # a model it cannot hold: one line, no file
     print_result(path)
     say(
         f"{path}: onnxruntime's normal map vs PyTorch's full-frame path: max angular difference {angle:.4f} deg on the "

@@ -109,7 +109,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("auto", "torch", "onnx", "onnx-int8"),
         default="auto",
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, MODEL.frame.onnx "
-        "with --full-frame, else PyTorch; an .onnx that is not the model's own export is refused; onnx-int8: "
+        "with --full-frame, else PyTorch; one of another model (left from before a retrain) is skipped with a warning, "
+        "and refused by --backend onnx; onnx-int8: "
         "dynamic int8 quantisation, faster for large nets, ~0.05 deg)",
     )
     p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
@@ -781,7 +782,8 @@ def _settings_before_loading(args: argparse.Namespace) -> dict | None:
 
     if args.device != "cpu" or args.full_frame or not Path(args.model).is_file():
         return None
-    return _settings(args, file_digest(args.model), resolved_backend(args.model, args.backend), "cpu", False)
+    digest = file_digest(args.model)
+    return _settings(args, digest, resolved_backend(args.model, args.backend, digest=digest), "cpu", False)
 
 
 def _look_before_loading(

@@ -85,7 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="auto",
         choices=("auto", "torch", "onnx", "onnx-int8"),
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, MODEL.frame.onnx "
-        "with --full-frame, else PyTorch; an .onnx that is not the model's own export is refused; a lookup table "
+        "with --full-frame, else PyTorch; one of another model (left from before a retrain) is skipped with a warning, "
+        "and refused by --backend onnx; a lookup table "
         "runs on NumPy: leave it at auto)",
     )
     p.add_argument(

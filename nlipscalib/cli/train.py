@@ -145,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import CaptureError, ConfigError
     from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
+    from ..learn.onnx_fullframe import frame_graph_path
     from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
     from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
@@ -262,23 +263,78 @@ def run(args: argparse.Namespace) -> int:
             f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)}; "
             f"{_why_stopped(result, cfg)}; curve {curve}"
         )
-        angle = None
+        angle = frame_angle = None
+        # the full-frame graph of the model this run replaces (`nlips export MODEL --full-frame`): made again for the
+        # new one and published with it, or removed in the same publish (said): never left beside the new model
+        frame = frame_graph_path(out)
+        why_not = {onnx_path: "--no-onnx", frame: "--no-onnx"} if args.no_onnx else {}
         try:
             if not args.no_onnx:
                 angle = export_and_check(stage / out.name, data, result.val_presses)[1]
+                if frame.is_file():
+                    frame_angle, why_not[frame] = _frame_graph_again(stage, out)
         except Exception:  # a failed export costs the export, not the training: the model goes out without one
-            (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
-            publish_model(stage, out, result)
+            if angle is None:
+                (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
+            (stage / frame.name).unlink(missing_ok=True)
+            removed = publish_model(stage, out, result).removed
             print_result(out)
             say(summary)
+            _say_removed(removed, out, {onnx_path: "its export failed", frame: "its export failed"} | why_not)
             raise
-        publish_model(stage, out, result)
+        removed = publish_model(stage, out, result).removed
     print_result(out)  # stdout: the model's file alone (scripts); how it trained, on stderr
     say(summary)
     if angle is not None:
         say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
+    if frame_angle is not None:
+        say(
+            f"{frame}: made again for the new model (the one it replaced had it): onnxruntime's normal map vs "
+            f"PyTorch's full-frame path max angular difference {frame_angle:.4f} deg"
+        )
+    _say_removed(removed, out, why_not)
     say(f"next: nlips infer {shell_word(out)} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
+
+
+def _frame_graph_again(stage: Path, out: Path) -> tuple[float | None, str | None]:
+    """The full-frame graph of the model trained into ``stage`` (to be published as ``out``), written there beside it
+    and checked against PyTorch's full-frame path as `nlips export --full-frame` writes it (it takes no other
+    options): (the largest angle, None), or (None, why not, naming the files as they will be published) when the new
+    model has no such graph (a bilateral prefilter too wide to unroll) or its check failed."""
+    from ..core.errors import CaptureError, ConfigError
+    from ..learn.model import load_model
+    from ..learn.onnx_fullframe import export_full_frame, frame_graph_path
+
+    staged = stage / out.name
+    try:
+        with _quiet_sensor_record():
+            model = load_model(staged)
+        return export_full_frame(model, frame_graph_path(staged))[1], None
+    except (CaptureError, ConfigError) as exc:  # the user's paths, not the stage's
+        why = str(exc).replace(str(frame_graph_path(staged)), str(frame_graph_path(out)))
+        return None, why.replace(str(staged), str(out))
+
+
+def _say_removed(removed: Sequence[Path], out: Path, why: dict[Path, str]) -> None:
+    """One warning for each export of the model this run replaced (MODEL.onnx, MODEL.frame.onnx: the keys of
+    ``why``, the reason it was not made again) that its publish removed, with the command that writes the new
+    model's."""
+    from ..learn.exports import remake_command
+    from ..learn.onnx_fullframe import frame_graph_path
+
+    for path in removed:
+        if path not in why:
+            continue
+        full = path == frame_graph_path(out)
+        what = "full-frame ONNX graph" if full else "ONNX export"
+        log.warning(
+            "%s: the %s of the model this training replaced, removed (not made again: %s); `%s` writes the new model's",
+            path,
+            what,
+            why[path],
+            remake_command(out, full),
+        )
 
 
 def _more_changed(changed: dict[str, str]) -> str:

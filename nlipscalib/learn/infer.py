@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -47,8 +48,10 @@ if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it 
     from .model import LoadedModel
 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
-"""Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
-onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's net, ~0.05 deg)."""
+"""Network runtimes: auto (onnx when MODEL.onnx exists and is the model's export, else torch), PyTorch, onnxruntime
+float32, and onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's net, ~0.05 deg)."""
+
+log = logging.getLogger(__name__)
 
 RESULT_DIR = "nlipsnet"
 """Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
@@ -99,7 +102,8 @@ class Predictor:
     model_path : the model file (.pt) from ``nlips train``
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
         ``nlips train``; with ``full_frame`` on the CPU, "onnx" (and "auto" when it is there) the full-frame graph
-        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals)
+        MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals; "auto" skips an export of another
+        model with one warning, :func:`resolved_backend`)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
         torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
@@ -226,7 +230,13 @@ class Predictor:
         model of colour ratios too (its ONNX graph divides the colours by the reference itself, PyTorch's runner
         here: once, either way); None on a GPU or the whole frame (:mod:`.fullframe`)."""
         on_cpu = self.device is None or (self.full_frame and self.device.type == "cpu")
-        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu, self.full_frame)
+        asked = backend
+        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu, self.full_frame, self.model.digest)
+        if asked == "auto" and backend == "torch" and on_cpu:  # an export there of another model: skipped, said
+            from .exports import beside_export, of_another_model, skipped_warning
+
+            if of_another_model(beside_export(self.model.path, self.full_frame), self.model.digest):
+                log.warning("%s", skipped_warning(self.model.path, self.full_frame))
         if self.device is not None:  # a GPU or the whole frame: run by .fullframe (its normals by the graph: onnx)
             return None
         if backend == "lut":  # a lookup table (learn.lut): NumPy and SciPy, no network runtime
@@ -491,13 +501,18 @@ def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return smooth_on_gel(frame, valid, REFRESH_SMOOTHING_PX)
 
 
-def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True, full_frame: bool = False) -> str:
+def resolved_backend(
+    model_path: str | Path, backend: str, on_cpu: bool = True, full_frame: bool = False, digest: str | None = None
+) -> str:
     """The runtime a :class:`Predictor` of ``model_path`` with ``backend`` runs (what its results record).
 
     PyTorch off the CPU (``on_cpu`` False: a GPU, run by :mod:`.fullframe`); "auto" is onnxruntime ("onnx") when the
     model was exported beside it (MODEL.onnx: ``nlips train`` writes one; with ``full_frame``, MODEL.frame.onnx:
-    ``nlips export MODEL --full-frame``), else PyTorch; any other as given; "lut" for a lookup table's file
-    (``learn.model.model_method``). Found from the file names and a table's first pickled strings alone, so ``nlips
+    ``nlips export MODEL --full-frame``) and that export records this model's digest, else PyTorch (an export left
+    from before the model was trained again is skipped: :mod:`.exports`); any other as given; "lut" for a lookup
+    table's file (``learn.model.model_method``). ``digest``: the model file's (``onnx_export.bytes_digest``, of the
+    bytes loaded), read from the file when not given. Found from the file names, a table's first pickled strings
+    and the export's recorded digest alone (a few hundred bytes: ``onnx_export.recorded_digest``), so ``nlips
     infer`` can tell that a re-run's results are all kept without loading the model or importing either runtime.
     """
     from .model import model_method
@@ -512,11 +527,13 @@ def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True, 
     if not on_cpu:
         return "torch"
     if backend == "auto":
-        if full_frame:
-            from .onnx_fullframe import frame_graph_path
+        from .exports import beside_export, of_another_model
+        from .onnx_export import file_digest
 
-            return "onnx" if frame_graph_path(model_path).is_file() else "torch"
-        return "onnx" if Path(model_path).with_suffix(".onnx").is_file() else "torch"
+        export = beside_export(model_path, full_frame)
+        if not export.is_file():
+            return "torch"
+        return "torch" if of_another_model(export, digest or file_digest(model_path)) else "onnx"
     return backend
 
 

@@ -26,7 +26,7 @@ dark frame, depth, normals) that inference compares frames with and integrates d
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -350,7 +350,7 @@ def load_model(path: str | Path) -> LoadedModel:
     _torch()
     path = Path(path)
     _check_model_path(path)
-    payload, data = _read_torch_bytes(path, "an NLiPsNet model file")
+    payload, data = _read_torch_bytes(path, _meant_as)  # a damaged file named as what it was meant to be
     if isinstance(payload, dict) and payload.get("format") == TABLE_FORMAT:
         return _load_table(path, payload, data)
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
@@ -486,24 +486,81 @@ def model_method(path: str | Path) -> str:
     """ "lut" when ``path`` is a lookup table's model file, else "nlipsnet" (an NLiPsNet's, or no readable model
     file: its load names the problem), told from the file's first pickled strings without unpickling it or
     importing torch (``pickletools`` reads the opcodes alone), so ``nlips infer`` knows where the results go and
-    which runtime it records before the model loads."""
-    import pickletools
+    which runtime it records before the model loads. A file cut short (no zip directory) is told from its first
+    entry (:func:`_first_entry`)."""
     import zipfile
 
     try:
         with zipfile.ZipFile(path) as archive:
             name = next((n for n in archive.namelist() if n.endswith("/data.pkl")), None)
-            if name is None or archive.getinfo(name).file_size > 1 << 20:
+            if name is None or archive.getinfo(name).file_size > PICKLE_READ:
                 return "nlipsnet"
-            strings = []
-            for op, arg, _ in pickletools.genops(archive.read(name)):
-                if isinstance(arg, str) and "UNICODE" in op.name:
-                    strings.append(arg)
-                    if len(strings) == 2:  # the payload's first key, "format", and its value
-                        break
-    except (OSError, zipfile.BadZipFile, ValueError, EOFError, KeyError):
+            return _method_of_pickle(archive.read(name))
+    except zipfile.BadZipFile:  # cut short: its first entry, data.pkl, is still at its start
+        try:
+            with open(path, "rb") as f:
+                return _method_of_pickle(_first_entry(f.read(PICKLE_READ)))
+        except OSError:
+            return "nlipsnet"
+    except (OSError, ValueError, EOFError, KeyError):
         return "nlipsnet"
+
+
+PICKLE_READ = 1 << 20
+"""Most bytes of a model file's pickle (its data.pkl: the keys and small values, the arrays are entries of their
+own) :func:`model_method` reads to tell a table's file from a network's."""
+
+
+def _method_of_pickle(pickle: bytes) -> str:
+    """ "lut" when the pickle's first two strings are the payload's first key, "format", and :data:`TABLE_FORMAT`,
+    else "nlipsnet"; read with ``pickletools`` (opcodes only, nothing unpickled), up to where a cut pickle ends."""
+    import pickletools
+
+    strings = []
+    try:
+        for op, arg, _ in pickletools.genops(pickle):
+            if isinstance(arg, str) and "UNICODE" in op.name:
+                strings.append(arg)
+                if len(strings) == 2:  # the payload's first key, "format", and its value
+                    break
+    except (ValueError, EOFError):  # the pickle cut short before them
+        pass
     return "lut" if strings == ["format", TABLE_FORMAT] else "nlipsnet"
+
+
+def _first_entry(data: bytes) -> bytes:
+    """The bytes after the first local header of a zip archive's ``data`` when that entry is a ``torch.save``
+    pickle (``.../data.pkl``, stored: torch.save's first entry), else b"": what a file cut short (its directory at
+    the end lost) still holds. The header's layout is the zip format's (PKWARE APPNOTE 4.3.7): 30 bytes, the name's
+    and the extra field's lengths at bytes 26-29."""
+    import struct
+
+    if len(data) < 30 or data[:4] != b"PK\x03\x04":
+        return b""
+    method, (name_len, extra_len) = struct.unpack_from("<H", data, 8)[0], struct.unpack_from("<2H", data, 26)
+    name = data[30 : 30 + name_len]
+    if method != 0 or not name.endswith(b"/data.pkl"):
+        return b""
+    return data[30 + name_len + extra_len :]
+
+
+def _meant_as(data: bytes) -> str:
+    """What a model file whose bytes are ``data`` was meant to be, for the error that finds it damaged: a lookup
+    table's (told as :func:`model_method` tells it, from a file cut short too) or an NLiPsNet's."""
+    import io
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            name = next((n for n in archive.namelist() if n.endswith("/data.pkl")), None)
+            pickle = archive.read(name)[:PICKLE_READ] if name else b""
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError):  # cut short, or entries damaged
+        pickle = _first_entry(data[:PICKLE_READ])
+    return TABLE_FILE if _method_of_pickle(pickle) == "lut" else MODEL_FILE
+
+
+MODEL_FILE, TABLE_FILE = "an NLiPsNet model file", "a lookup table's file from `nlips lut`"
+"""What a model file is meant to be, in the errors that find it damaged (:func:`_read_torch_bytes`)."""
 
 
 def _check_layer_shapes(hidden: Sequence[int], state: object, path: Path) -> None:
@@ -621,23 +678,25 @@ def read_torch_file(path: str | Path, what: str) -> object:
     return _read_torch_bytes(path, what)[0]
 
 
-def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
+def _read_torch_bytes(path: str | Path, what: str | Callable[[bytes], str]) -> tuple[object, bytes]:
     """:func:`read_torch_file`, and the bytes it loaded: the file is read once, so both are of one version of it
-    even while another process replaces the file."""
+    even while another process replaces the file. ``what`` may be told from the bytes (:func:`_meant_as`), only
+    when an error needs it."""
     import io
     import zipfile
 
     torch = _torch()
     path = Path(path)
     try:
-        data = _read_bounded(path, what)
+        data = _read_bounded(path, what if isinstance(what, str) else MODEL_FILE)
     except OSError as exc:
         raise CaptureError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if not data:
-        raise CaptureError(f"{path}: empty, not {what} (an interrupted copy?)")
+        raise CaptureError(f"{path}: empty, not {_named(what, data)} (an interrupted copy?)")
     if data[:4] != b"PK\x03\x04":
-        raise CaptureError(f"{path}: not {what} (not a torch.save archive)")
+        raise CaptureError(f"{path}: not {_named(what, data)} (not a torch.save archive)")
     if not zipfile.is_zipfile(io.BytesIO(data)):
+        what = _named(what, data)
         raise CaptureError(f"{path}: truncated or damaged, not usable as {what} (the archive's directory is missing)")
     _check_inflated_size(path, data, what)
     try:
@@ -647,7 +706,12 @@ def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
         if "weights_only" in first or "Weights only load failed" in first:
             first = "it holds objects other than tensors and plain data"
         detail = f"{type(exc).__name__}: {first[:160]}" if first else type(exc).__name__
-        raise CaptureError(f"{path}: damaged, not usable as {what} ({detail})") from None
+        raise CaptureError(f"{path}: damaged, not usable as {_named(what, data)} ({detail})") from None
+
+
+def _named(what: str | Callable[[bytes], str], data: bytes) -> str:
+    """``what`` in words: as given, or told from the file's bytes ``data`` (:func:`_meant_as`)."""
+    return what if isinstance(what, str) else what(data)
 
 
 def _read_bounded(path: Path, what: str) -> bytes:
@@ -671,7 +735,7 @@ def _read_bounded(path: Path, what: str) -> bytes:
     return data
 
 
-def _check_inflated_size(path: Path, data: bytes, what: str) -> None:
+def _check_inflated_size(path: Path, data: bytes, what: str | Callable[[bytes], str]) -> None:
     """CaptureError naming the file when its zip entries declare more bytes than the file holds.
 
     torch.save stores its entries uncompressed, but torch.load inflates deflated ones too: a received file of
@@ -683,9 +747,9 @@ def _check_inflated_size(path: Path, data: bytes, what: str) -> None:
     try:
         inflated = sum(entry.file_size for entry in zipfile.ZipFile(io.BytesIO(data)).infolist())
     except (zipfile.BadZipFile, OSError, ValueError) as exc:  # a directory that names impossible entries
-        raise CaptureError(f"{path}: damaged, not usable as {what} ({type(exc).__name__})") from None
+        raise CaptureError(f"{path}: damaged, not usable as {_named(what, data)} ({type(exc).__name__})") from None
     if inflated > len(data):
         raise CaptureError(
             f"{path}: its entries inflate to {inflated} bytes from a file of {len(data)} (torch.save stores them "
-            f"uncompressed): not usable as {what}"
+            f"uncompressed): not usable as {_named(what, data)}"
         )

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -69,6 +69,87 @@ def bytes_digest(data: bytes) -> str:
 
 def file_digest(path: str | Path) -> str:
     return bytes_digest(Path(path).read_bytes())
+
+
+def recorded_digest(path: str | Path) -> str | None:
+    """The ``model_digest`` an ONNX file of a model records in its metadata (the per-pixel export's and the
+    full-frame graph's alike), or None when it records none or cannot be read so (its check names why when it is
+    used: :func:`check_export`, ``onnx_fullframe.check_full_frame``).
+
+    Read by walking the file's top-level protobuf fields (:func:`_top_level_metadata`) and seeking past the graph:
+    a few hundred bytes read, no protobuf import. Why not protobuf's parser (:func:`onnx_messages`): importing the
+    messages and parsing a ratio model's 4 MB export cost 22-26 ms of CPU (a ``nlips infer`` re-run that keeps every
+    result, which reads the digest to choose its runtime before anything loads, takes 0.30 s; the walk 0.02 ms:
+    benchmarks/RESULTS.md, s40-companions)."""
+    try:
+        with open(path, "rb") as f:
+            return _top_level_metadata(f).get("model_digest")
+    except (OSError, ValueError):  # unreadable, or not protobuf's wire format
+        return None
+
+
+MAX_TOP_LEVEL_FIELDS = 1000
+"""Most top-level fields :func:`_top_level_metadata` walks (an export has ~10, one per metadata entry among them)."""
+
+
+def _top_level_metadata(f: BinaryIO) -> dict[str, str]:
+    """The metadata entries (ModelProto field 14, StringStringEntryProto: key 1, value 2) of the ONNX file open as
+    ``f``, walking its top-level fields in the protobuf wire format (varint tags; length-delimited fields skipped by
+    seeking, https://protobuf.dev/programming-guides/encoding/); ValueError when the bytes are not that format."""
+    entries = {}
+    for _ in range(MAX_TOP_LEVEL_FIELDS):
+        tag = _varint(f)
+        if tag is None:  # the end of the file
+            return entries
+        field, wire = tag >> 3, tag & 7
+        if wire == 0:
+            _varint(f)
+        elif wire in (1, 5):  # fixed64, fixed32
+            f.seek(8 if wire == 1 else 4, 1)
+        elif wire == 2:
+            size = _varint(f)
+            if size is None:
+                raise ValueError("cut short")
+            if field == 14 and size < 1 << 16:
+                entry = _fields(f.read(size))
+                entries[entry.get(1, b"").decode("utf-8", "replace")] = entry.get(2, b"").decode("utf-8", "replace")
+            else:
+                f.seek(size, 1)
+        else:
+            raise ValueError(f"wire type {wire}")
+    raise ValueError("too many top-level fields")
+
+
+def _varint(f: BinaryIO) -> int | None:
+    """The protobuf varint at ``f``'s position; None at the end of the file."""
+    value = shift = 0
+    while True:
+        byte = f.read(1)
+        if not byte:
+            if shift:
+                raise ValueError("cut short")
+            return None
+        value |= (byte[0] & 0x7F) << shift
+        if byte[0] < 0x80:
+            return value
+        shift += 7
+        if shift > 63:
+            raise ValueError("varint too long")
+
+
+def _fields(data: bytes) -> dict[int, bytes]:
+    """The length-delimited fields of a small message's bytes (a metadata entry's key and value), by number."""
+    import io
+
+    f, fields = io.BytesIO(data), {}
+    while (tag := _varint(f)) is not None:
+        if tag & 7 != 2:
+            raise ValueError(f"wire type {tag & 7} in a metadata entry")
+        size = _varint(f)
+        if size is None:
+            raise ValueError("cut short")
+        fields[tag >> 3] = f.read(size)
+    return fields
 
 
 def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], object] | None = None) -> Path:

@@ -8,6 +8,7 @@ one model path leave the files of one run, the last to finish, never a mix.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import time
 from collections.abc import Iterator
@@ -18,6 +19,7 @@ from typing import TYPE_CHECKING
 from ..core import atomic
 from ..core.errors import ConfigError
 from .checkpoint import checkpoint_path
+from .onnx_fullframe import FULL_FRAME_SUFFIX
 
 if TYPE_CHECKING:
     from ..core.claims import Owner
@@ -27,8 +29,27 @@ log = logging.getLogger(__name__)
 
 
 def model_file_names(out: Path) -> tuple[str, ...]:
-    """The files one training writes beside the model ``out``: the model, its checkpoint, ONNX export and curve."""
-    return (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
+    """The files one training writes beside the model ``out``: the model, its checkpoint, ONNX export, curve and,
+    when one was there, its full-frame graph made again (MODEL.frame.onnx, ``cli.train``)."""
+    frame = out.with_suffix(FULL_FRAME_SUFFIX).name
+    return (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png", frame)
+
+
+def export_names(out: Path) -> tuple[str, ...]:
+    """The ONNX files beside the model ``out`` that inference runs (MODEL.onnx, MODEL.frame.onnx): removed first when
+    a training publishes, so that a reader in between finds the new model without them, never beside them."""
+    return (out.with_suffix(".onnx").name, out.with_suffix(FULL_FRAME_SUFFIX).name)
+
+
+@dataclasses.dataclass(frozen=True)
+class Published:
+    """What :func:`publish_model` did."""
+
+    files: list[Path]
+    """The files of this training put beside the model, the model first."""
+    removed: list[Path]
+    """Files of those names that were there and that this training did not make (another run's, or an export of the
+    model it replaced: its full-frame graph when it could not be made again), removed."""
 
 
 PUBLISH_POLL_S = 0.05
@@ -44,7 +65,7 @@ def model_stage(out: str | Path) -> AbstractContextManager[Path]:
     return scratch_dir(out)
 
 
-def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None = None) -> list[Path]:
+def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None = None) -> Published:
     """Put the files of one training (``stage``, from :func:`model_stage`) beside ``out``, together.
 
     Why: two ``nlips train`` runs into one ``--out`` with different options each wrote their .pt, .onnx and
@@ -52,27 +73,36 @@ def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None
     refuses as exported from another model). Now each run publishes under a claim on the model path, so the
     renames of two runs never interleave, and removes the files of :func:`model_file_names` it did not write
     (an .onnx of an earlier run when this one has none): the last run to finish leaves its files, whole, and
-    nothing of another run beside them. The old .onnx goes first, so a reader in between finds the new model
-    with no export (PyTorch is used) rather than with a stale one.
+    nothing of another run beside them. The old .onnx and full-frame graph go first, so a reader in between finds
+    the new model with no export (PyTorch is used) rather than with a stale one.
 
     ``result``: the training's :class:`TrainResult`; its per-epoch checkpoint is removed once its last state is
     published.
-
-    Returns the published paths.
     """
     stage, out = Path(stage), Path(out)
+    published, removed = [], []
     with model_files_held(out):
-        out.with_suffix(".onnx").unlink(missing_ok=True)  # first: see above
-        published = []
-        for name in model_file_names(out):  # the model before its export
+        for name in export_names(out):  # first: see above
+            if _removed(out.parent / name) and not (stage / name).exists():  # not replaced: said by the caller
+                removed.append(out.parent / name)
+        for name in model_file_names(out):  # the model before its exports
             if (stage / name).exists():
                 atomic.replace(stage / name, out.parent / name)  # Windows: retried while a program holds it
                 published.append(out.parent / name)
-            else:  # another run's file, or a file of this name made before
-                (out.parent / name).unlink(missing_ok=True)
+            elif _removed(out.parent / name):  # another run's file, or a file of this name made before
+                removed.append(out.parent / name)
         if result is not None and result.progress is not None:
             result.progress.unlink(missing_ok=True)
-        return published
+        return Published(published, removed)
+
+
+def _removed(path: Path) -> bool:
+    """Remove ``path``; whether it was there."""
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        return False
+    return True
 
 
 @contextlib.contextmanager

@@ -4,6 +4,7 @@ through the command line, for a press (a linear frame, stored again for the grap
 backend recorded; a graph of another model (left from before a retrain) and a missing one are one line each."""
 
 import json
+import logging
 import shutil
 
 import numpy as np
@@ -94,22 +95,35 @@ def test_a_stream_through_the_graph_saves_the_pytorch_full_frame_normals(trained
     assert _max_angle(normals, want, gel) < ONNX_PARITY_DEG
 
 
-def test_a_graph_of_another_model_is_refused_in_one_line(trained, twin_presses, tmp_path, capsys):
-    """The model trained again (another digest) beside the graph of the old one: refused, naming the file and the
-    command that writes it again, with auto (which takes the graph beside the model) and with --backend onnx."""
+def test_a_graph_of_another_model_is_skipped_by_auto_and_refused_by_backend_onnx(
+    trained, twin_presses, tmp_path, capsys, caplog
+):
+    """The model trained again (another digest) beside the graph of the old one: auto (the best runtime available)
+    skips it with one warning naming the file and the command that writes it again, and PyTorch's full-frame path
+    runs (exit 0, the result records torch); --backend onnx, asked by name, is refused in one line saying the same."""
     model = _exported(trained, tmp_path / "m")
     payload = torch.load(model, weights_only=False)
     # another file (as after a retrain), another digest
     payload["info"] = payload["info"] | {"best_epoch": payload["info"]["best_epoch"] + 1}
     torch.save(payload, model)
     capsys.readouterr()
-    for backend in ("auto", "onnx"):
-        args = ["infer", str(model), str(twin_presses / HELD_OUT), "--full-frame", "--backend", backend]
-        assert main([*args, "--out", str(tmp_path / backend)]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1, err
-        assert "net.frame.onnx" in err[0] and "another model" in err[0], err
-        assert f"nlips export {model} --full-frame" in err[0], err
+    press = str(twin_presses / HELD_OUT)
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(model), press, "--full-frame", "--out", str(tmp_path / "auto")]) == 0
+    lines = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    said = [line for line in lines if "net.frame.onnx" in line]
+    assert len(said) == 1, lines
+    assert "another model" in said[0] and "skipped, PyTorch runs the network" in said[0], said
+    assert f"nlips export {model} --full-frame" in said[0], said
+    report = json.loads((tmp_path / "auto" / HELD_OUT / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
+    assert report["backend"] == "torch" and report["full_frame"] is True
+    capsys.readouterr()  # the run's closing lines
+    args = ["infer", str(model), press, "--full-frame", "--backend", "onnx", "--out", str(tmp_path / "onnx")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "net.frame.onnx" in err[0] and "another model" in err[0], err
+    assert f"nlips export {model} --full-frame" in err[0], err
 
 
 def test_a_missing_graph_with_backend_onnx_says_how_to_make_it(trained, twin_presses, tmp_path, capsys):

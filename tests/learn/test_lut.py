@@ -171,9 +171,15 @@ def test_a_missing_damaged_or_edited_table_file_is_one_line(tiny, tmp_path, caps
     assert main(["infer", str(tmp_path / "none.pt"), str(press), "--out", str(tmp_path / "o")]) == 2
     assert _one_line(capsys) == f"nlips infer: error: {tmp_path / 'none.pt'}: model file is missing"
     cut = tmp_path / "cut.pt"
-    cut.write_bytes(table_file.read_bytes()[:-200])
-    assert main(["infer", str(cut), str(press), "--out", str(tmp_path / "o")]) == 2
-    assert "truncated or damaged" in _one_line(capsys)
+    for length in (-200, 1000):  # the archive's directory lost, and the file cut inside its first entry
+        cut.write_bytes(table_file.read_bytes()[:length])
+        assert main(["infer", str(cut), str(press), "--out", str(tmp_path / "o")]) == 2
+        # named as what it was meant to be (it was "... not usable as an NLiPsNet model file"), told from its first
+        # entry as model_method tells a whole one
+        assert _one_line(capsys) == (
+            f"nlips infer: error: {cut}: truncated or damaged, not usable as a lookup table's file from `nlips lut` "
+            "(the archive's directory is missing)"
+        )
     payload = torch.load(table_file, weights_only=True)
     payload["table"]["keys"][0, 0] = 99
     edited = tmp_path / "edited.pt"
@@ -248,6 +254,10 @@ def test_a_tables_file_is_told_from_a_networks_without_unpickling_it(tmp_path):
         assert model_method(tmp_path / "m.pt") == method
     torch.save({"info": {"format": TABLE_FORMAT}, "format": MODEL_FORMAT}, tmp_path / "m.pt")  # not the first key
     assert model_method(tmp_path / "m.pt") == "nlipsnet"
+    for fmt, method in ((TABLE_FORMAT, "lut"), (MODEL_FORMAT, "nlipsnet")):  # cut short: told from the first entry
+        torch.save({"format": fmt, "format_version": 1, "weights": torch.zeros(4000)}, tmp_path / "m.pt")
+        (tmp_path / "cut.pt").write_bytes((tmp_path / "m.pt").read_bytes()[:-5000])
+        assert model_method(tmp_path / "cut.pt") == method
     (tmp_path / "junk.pt").write_bytes(b"PK\x03\x04 not a zip")
     assert model_method(tmp_path / "junk.pt") == model_method(tmp_path / "none.pt") == "nlipsnet"  # its load says why
 

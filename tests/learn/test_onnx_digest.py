@@ -77,3 +77,33 @@ def test_the_onnx_metadata_is_json_a_labs_tool_can_read(tmp_path):
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert json.loads(meta["hidden"]) == [32, 16]
     assert json.loads(meta["sensor"])["camera"]["width"] == 64
+
+
+def test_the_recorded_digest_is_read_from_the_files_top_level_fields_as_onnx_reads_it(tmp_path):
+    """`--backend auto` reads an export's `model_digest` to skip one of another model without loading anything
+    (learn.onnx_export.recorded_digest walks the file's top-level protobuf fields): the value onnx itself reads, for
+    the per-pixel export and the full-frame graph, metadata written in any order; None for a file cut before its
+    metadata, garbage, a model file and no file."""
+    onnx = pytest.importorskip("onnx")
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import export_onnx, recorded_digest
+    from nlipscalib.learn.onnx_fullframe import export_full_frame
+
+    model = load_model(_save(tmp_path / "m.pt"))
+    pixel = export_onnx(model, tmp_path / "m.onnx")
+    frame = export_full_frame(model, tmp_path / "m.frame.onnx", check=False)[0]
+    for path in (pixel, frame):
+        assert recorded_digest(path) == model.digest
+        assert {p.key: p.value for p in onnx.load(str(path)).metadata_props}["model_digest"] == model.digest
+    proto = onnx.load(str(pixel))
+    entries = [(p.key, p.value) for p in proto.metadata_props][::-1]
+    del proto.metadata_props[:]
+    for key, value in [("note", "x" * 300), *entries]:  # reordered, a longer entry first
+        proto.metadata_props.add(key=key, value=value)
+    onnx.save(proto, str(tmp_path / "reordered.onnx"))
+    assert recorded_digest(tmp_path / "reordered.onnx") == model.digest
+    data = pixel.read_bytes()
+    (tmp_path / "cut.onnx").write_bytes(data[: len(data) // 2])
+    (tmp_path / "garbage.onnx").write_bytes(bytes(range(256)) * 40)
+    for other in ("cut.onnx", "garbage.onnx", "m.pt", "none.onnx"):
+        assert recorded_digest(tmp_path / other) is None, other

@@ -467,12 +467,18 @@ def test_a_killed_trainings_hold_is_taken_over_and_its_progress_resumed(built, t
     assert f"{out}: reused, trained before" in capsys.readouterr().err
 
 
-def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_meanwhile(built, tmp_path, monkeypatch):
+@pytest.mark.parametrize("full_frame", [False, True])
+def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_meanwhile(
+    built, tmp_path, monkeypatch, full_frame
+):
     """`nlips export m.pt` read the model, a training published another m.pt (and its .onnx) meanwhile, then the export
     put the old model's .onnx beside the new .pt (inference refused it). The export now reads and writes while no
-    training publishes into that place (their claim on the model path), so its .onnx is of the .pt beside it."""
+    training publishes into that place (their claim on the model path), so its .onnx is of the .pt beside it; the
+    full-frame graph (`--full-frame`, m.frame.onnx, which `nlips infer --full-frame` runs) likewise (s40-companions:
+    it was written without the claim)."""
     from nlipscalib.learn import model as model_module
     from nlipscalib.learn.onnx_export import OnnxNet
+    from nlipscalib.learn.onnx_fullframe import check_full_frame
     from nlipscalib.learn.publish import model_files_held
 
     data, out = CalibrationDataset(built), tmp_path / "m.pt"
@@ -502,11 +508,15 @@ def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_me
     publisher.start()
     held.wait(timeout=10)
     try:
-        assert main(["export", str(out)]) == 0
+        assert main(["export", str(out), *(["--full-frame"] if full_frame else [])]) == 0
     finally:
         publisher.join()
     assert load_model(out).hidden == (4,)
-    OnnxNet(out.with_suffix(".onnx"), real_load(out))  # exported from the .pt beside it ("from another model" before)
+    # exported from the .pt beside it ("from another model" before)
+    if full_frame:
+        check_full_frame(out.with_suffix(".frame.onnx"), real_load(out))
+    else:
+        OnnxNet(out.with_suffix(".onnx"), real_load(out))
 
 
 @pytest.mark.parametrize("torn", ["m.pt", "m.onnx"])
