@@ -51,12 +51,17 @@ def measure_contact(
     (:func:`press_contact`, its labels) and a frame is judged by (:func:`judge_steepness`, the model's normals), so
     that the two cannot drift apart; None without a contact (:func:`nlipscalib.core.steepness.patch_steepness`).
 
-    The region's holes are filled, its :data:`RIM_PX` rim taken off, and the largest patch left measured: its size
-    the diameter, the tilt over its pixels of ``region`` alone. Why the holes: a calibration press's region is its
-    contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and taking
-    the rim off each such hole cut the steep relief around it away: Q2's coin measured 173 px / 16.9 deg (0.097
-    deg/px) on its labels against 190 px / 21.0 deg (0.110) with the same labels on the change rule's whole region
-    (benchmarks/RESULTS.md, s39-steepwarn).
+    The region's notches narrower than its rim's two sides (2 :data:`RIM_PX` + 1 px) are closed by a disc
+    (``core.masks.close``) and its holes filled, its :data:`RIM_PX` rim taken off, and the largest patch left
+    measured: its size the diameter, the tilt over its pixels of ``region`` alone. Why: a calibration press's region
+    is its contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and
+    taking the rim off round each of them cut the steep relief next to them away: inside the contact such pixels are
+    holes (Q2's coin measured 173 px / 16.9 deg, 0.097 deg/px, on its labels against 190 px / 21.0 deg, 0.110, with
+    the same labels on the change rule's whole region; s39-steepwarn), at its edge a notch open to the outside, which
+    the rim ate into (a disc 40 px across with a notch of them 6 px wide and 10 deep at its edge: 30.4 px against
+    its frame's 32.6, now 32.4; s40-steep).
+    Not the convex hull: it spans a contact's own concave outline (a key, two fingers) and moved Q2's presses 2-7 %
+    where the disc's closing moved them 0.1-2.6 % (benchmarks/RESULTS.md, s40-steep).
 
     Parameters
     ----------
@@ -66,7 +71,7 @@ def measure_contact(
     reference_normals : (H, W, 3) float, unit, camera frame -- the undeformed surface's normals.
     origin : (row, column) int, px -- where ``region`` lies in the image.
     """
-    core = masks.erode(masks.fill_holes(region), RIM_PX)
+    core = masks.erode(masks.fill_holes(masks.close(region, RIM_PX)), RIM_PX)
     return patch_steepness(core, normals, reference_normals, origin, measured=region)
 
 
