@@ -54,6 +54,19 @@ def test_steeper_than_the_calibration_is_warned_about_below_the_solves_rule():
     assert "NLiPsNet resolves" not in why
 
 
+def test_a_tables_normals_are_held_to_its_own_lower_figure():
+    """A lookup table's normals stop at its bins' steepest, so a steep contact reads flatter on them: its results are
+    held to ``TABLE_CHANGED_TILT_PER_PX`` (0.3 deg/px), a network's to ``CHANGED_TILT_PER_PX`` (0.4; s40-steep)."""
+    from nlipscalib.learn.resolution import NETWORK_WORDS, ModelWords
+
+    dent = _dent(24, 14)  # less the rim ~40 px across, 14 deg: 0.35 deg/px, between the two
+    table = ModelWords("a lookup table's normals resolve", "its normals there are smoothed", table=True)
+    assert (table.limit_per_px, NETWORK_WORDS.limit_per_px) == (0.3, 0.4)
+    assert steepness_warning(*dent, "f", None) is None
+    assert "beyond the ~0.3 deg/px a lookup table's normals resolve;" in steepness_warning(*dent, "f", None, table)
+    assert steepness_warning(*_dent(24, 11), "f", None, table) is None  # 0.27 deg/px: within the table's figure
+
+
 @pytest.mark.parametrize("info", [{}, {INFO_KEY: None}, {INFO_KEY: {"max_tilt_per_px": "x"}}, {INFO_KEY: []}, None])
 def test_model_files_without_a_usable_record_are_not_checked_against_the_calibration(info):
     assert recorded_steepness(info) is None
@@ -299,13 +312,13 @@ def test_a_tables_results_are_warned_about_in_its_own_words(table, twin_presses,
     from .conftest import HELD_OUT
 
     press = twin_presses / HELD_OUT
-    monkeypatch.setattr(tolerances, "CHANGED_TILT_PER_PX", 0.05)  # below the table's own contact: the rule speaks
+    monkeypatch.setattr(tolerances, "TABLE_CHANGED_TILT_PER_PX", 0.05)  # below the table's own contact: the rule speaks
     with caplog.at_level(logging.WARNING):
         assert main(["--no-progress", "infer", str(table), str(press), "--out", str(tmp_path / "a")]) == 0
     (line,) = [r.getMessage() for r in caplog.records if "contact about" in r.getMessage()]
     step = load_model(table).table.bin_step_deg
     assert 0 < step < 90
-    assert "beyond the ~0.05 deg/px the calibration's smoothed colours resolve" in line, line
+    assert "beyond the ~0.05 deg/px a lookup table's normals resolve" in line, line
     assert (
         f"; the lookup table resolves what its bins resolve (its neighbouring bins' normals ~{step:.1f} deg apart, "
         "16 levels per colour channel), and its normals there are smoothed (expect several degrees" in line
@@ -346,4 +359,4 @@ def test_a_network_and_a_table_without_neighbouring_bins_are_named_so():
     words = model_words(SimpleNamespace(table=lone))
     assert "(its 4 levels per colour channel)" in words.normals and "deg apart" not in words.normals
     why = steepness_warning(changed, normals, reference, "f", None, words)
-    assert "deg/px the calibration's smoothed colours resolve;" in why and "NLiPsNet" not in why
+    assert "deg/px a lookup table's normals resolve;" in why and "NLiPsNet" not in why
