@@ -51,8 +51,8 @@ def measure_contact(
     (:func:`press_contact`, its labels) and a frame is judged by (:func:`judge_steepness`, the model's normals), so
     that the two cannot drift apart; None without a contact (:func:`nlipscalib.core.steepness.patch_steepness`).
 
-    The region's notches narrower than its rim's two sides (2 :data:`RIM_PX` + 1 px) are closed by a disc
-    (``core.masks.close``) and its holes filled, its :data:`RIM_PX` rim taken off, and the largest patch left
+    The region's notches narrower than 2 :data:`RIM_PX` + 1 px (the rim's reach from both sides) are closed by a
+    disc (``core.masks.close``) and its holes filled, its :data:`RIM_PX` rim taken off, and the largest patch left
     measured: its size the diameter, the tilt over its pixels of ``region`` alone. Why: a calibration press's region
     is its contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and
     taking the rim off round each of them cut the steep relief next to them away: inside the contact such pixels are
@@ -61,7 +61,7 @@ def measure_contact(
     the rim ate into (a disc 40 px across with a notch of them 6 px wide and 10 deep at its edge: 30.4 px against
     its frame's 32.6, now 32.4; s40-steep).
     Not the convex hull: it spans a contact's own concave outline (a key, two fingers) and moved Q2's presses 2-7 %
-    where the disc's closing moved them 0.1-2.6 % (benchmarks/RESULTS.md, s40-steep).
+    where the disc's closing moved them 0.3-2.6 % (benchmarks/RESULTS.md, s40-steep).
 
     Parameters
     ----------
