@@ -60,7 +60,7 @@ def measure_contact(
     the same labels on the change rule's whole region; s39-steepwarn), at its edge a notch open to the outside, which
     the rim ate into (a disc 40 px across with a notch of them 6 px wide and 10 deep at its edge: 30.4 px against
     its frame's 32.6, now 32.4; s40-steep).
-    Not the convex hull: it spans a contact's own concave outline (a key, two fingers) and moved Q2's presses 2-7 %
+    Not the convex hull: it spans a contact's own concave outline (a key, two fingers) and moved Q2's presses 2-8 %
     where the disc's closing moved them 0.3-2.6 % (benchmarks/RESULTS.md, s40-steep).
 
     Parameters
