@@ -11,9 +11,9 @@ predicted normals with that and with the solve's rule, measured on the changed r
 (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`).
 Both use the change rule's region (:mod:`.change`), the same at training and at inference, and one measure of it
 (:func:`measure_contact`): a calibration press's two figures differ by its normals alone, labels against the model's
-(Q2 full's 50 presses: the frame's 0.945-1.014 times the recorded). A lookup table's results are judged alike (it
-is fitted on the same smoothed labels and colours) and worded as its own (:func:`model_words`): a table resolves
-what its bins resolve.
+(Q2 full's 50 presses: the frame's 0.945-1.014 times the recorded). A lookup table's results are judged alike, by
+its own figure (:data:`~nlipscalib.core.tolerances.TABLE_CHANGED_TILT_PER_PX`: its normals stop at its bins'
+steepest) and worded as its own (:func:`model_words`): a table resolves what its bins resolve.
 """
 
 from __future__ import annotations
@@ -51,12 +51,17 @@ def measure_contact(
     (:func:`press_contact`, its labels) and a frame is judged by (:func:`judge_steepness`, the model's normals), so
     that the two cannot drift apart; None without a contact (:func:`nlipscalib.core.steepness.patch_steepness`).
 
-    The region's holes are filled, its :data:`RIM_PX` rim taken off, and the largest patch left measured: its size
-    the diameter, the tilt over its pixels of ``region`` alone. Why the holes: a calibration press's region is its
-    contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and taking
-    the rim off each such hole cut the steep relief around it away: Q2's coin measured 173 px / 16.9 deg (0.097
-    deg/px) on its labels against 190 px / 21.0 deg (0.110) with the same labels on the change rule's whole region
-    (benchmarks/RESULTS.md, s39-steepwarn).
+    The region's notches narrower than 2 :data:`RIM_PX` + 1 px (the rim's reach from both sides) are closed by a
+    disc (``core.masks.close``) and its holes filled, its :data:`RIM_PX` rim taken off, and the largest patch left
+    measured: its size the diameter, the tilt over its pixels of ``region`` alone. Why: a calibration press's region
+    is its contact samples, which leave out the pixels whose NLiPs label was unreliable (a coin's steep walls), and
+    taking the rim off round each of them cut the steep relief next to them away: inside the contact such pixels are
+    holes (Q2's coin measured 173 px / 16.9 deg, 0.097 deg/px, on its labels against 190 px / 21.0 deg, 0.110, with
+    the same labels on the change rule's whole region; s39-steepwarn), at its edge a notch open to the outside, which
+    the rim ate into (a disc 40 px across with a notch of them 6 px wide and 10 deep at its edge: 30.4 px against
+    its frame's 32.6, now 32.4; s40-steep).
+    Not the convex hull: it spans a contact's own concave outline (a key, two fingers) and moved Q2's presses 2-8 %
+    where the disc's closing moved them 0.3-2.6 % (benchmarks/RESULTS.md, s40-steep).
 
     Parameters
     ----------
@@ -66,7 +71,7 @@ def measure_contact(
     reference_normals : (H, W, 3) float, unit, camera frame -- the undeformed surface's normals.
     origin : (row, column) int, px -- where ``region`` lies in the image.
     """
-    core = masks.erode(masks.fill_holes(region), RIM_PX)
+    core = masks.erode(masks.fill_holes(masks.close(region, RIM_PX)), RIM_PX)
     return patch_steepness(core, normals, reference_normals, origin, measured=region)
 
 
@@ -127,16 +132,26 @@ def recorded_steepness(info: dict) -> float | None:
 
 @dataclass(frozen=True)
 class ModelWords:
-    """How a steepness warning names the model whose normals it judges (:func:`model_words`).
+    """How a steepness warning names the model whose normals it judges, and the figure it holds them to
+    (:func:`model_words`).
 
     Attributes
     ----------
-    resolves : str -- what resolves :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`, after "the ~0.4 deg/px".
+    resolves : str -- what resolves :attr:`limit_per_px`, after "the ~0.4 deg/px".
     normals : str -- what the model's normals are in such a contact.
+    table : bool -- a lookup table's (:data:`~nlipscalib.core.tolerances.TABLE_CHANGED_TILT_PER_PX`), not a network's.
     """
 
     resolves: str
     normals: str
+    table: bool = False
+
+    @property
+    def limit_per_px(self) -> float:
+        """The deg/px beyond which the model's normals in a contact are smoothed: a network's
+        :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`, a table's
+        :data:`~nlipscalib.core.tolerances.TABLE_CHANGED_TILT_PER_PX` (read when judged)."""
+        return tolerances.TABLE_CHANGED_TILT_PER_PX if self.table else tolerances.CHANGED_TILT_PER_PX
 
 
 NETWORK_WORDS = ModelWords("NLiPsNet resolves", "NLiPsNet's normals there are smoothed")
@@ -146,11 +161,11 @@ NETWORK_WORDS = ModelWords("NLiPsNet resolves", "NLiPsNet's normals there are sm
 def model_words(model: LoadedModel) -> ModelWords:
     """The words of a steepness warning about ``model``'s normals: NLiPsNet's, or a lookup table's (``learn.lut``).
 
-    Why: a table is fitted on the network's smoothed labels and prefiltered colours, so the limit holds for it (it
-    was measured with a net: :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`), but its normals are its bins'
-    means: it resolves what its bins resolve, the step between neighbouring bins' normals
-    (:attr:`.lut.LookupTable.bin_step_deg`), said with its levels; a warning that named NLiPsNet for a table's
-    results (s38-lutcli) sent the user to a network they had not run."""
+    Why: a table's normals are its bins' means: it resolves what its bins resolve, the step between neighbouring
+    bins' normals (:attr:`.lut.LookupTable.bin_step_deg`), said with its levels, and its own figure
+    (:data:`~nlipscalib.core.tolerances.TABLE_CHANGED_TILT_PER_PX`, 0.3 deg/px against a network's 0.4: its normals
+    stop at its bins' steepest, so a steep contact reads flatter on them; s40-steep); a warning that named NLiPsNet
+    for a table's results (s38-lutcli) sent the user to a network they had not run."""
     table = getattr(model, "table", None)
     if table is None:
         return NETWORK_WORDS
@@ -158,8 +173,9 @@ def model_words(model: LoadedModel) -> ModelWords:
     bins = f"{table.bins} levels per colour channel"
     apart = f"its neighbouring bins' normals ~{step:.1f} deg apart, {bins}" if math.isfinite(step) else f"its {bins}"
     return ModelWords(
-        "the calibration's smoothed colours resolve",
+        "a lookup table's normals resolve",
         f"the lookup table resolves what its bins resolve ({apart}), and its normals there are smoothed",
+        table=True,
     )
 
 
@@ -290,7 +306,9 @@ def judge_steepness(
 
     The frame's changed region's largest patch and its predicted normals' tilt (:func:`measure_contact`, the
     measure the calibration presses were recorded by) turn by more degrees per pixel than the model resolves
-    (:data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`), or than the steepest calibration press did by
+    (:attr:`ModelWords.limit_per_px` of ``words``: a network's
+    :data:`~nlipscalib.core.tolerances.CHANGED_TILT_PER_PX`, a table's
+    :data:`~nlipscalib.core.tolerances.TABLE_CHANGED_TILT_PER_PX`), or than the steepest calibration press did by
     :data:`~nlipscalib.core.tolerances.UNCALIBRATED_STEEPNESS_FACTOR` (``calibrated_per_px``; None: not checked).
 
     Parameters
@@ -313,8 +331,8 @@ def judge_steepness(
     diameter, tilt = found
     per_px = tilt / diameter
     limits = []
-    if per_px > tolerances.CHANGED_TILT_PER_PX:
-        limits.append(f"the ~{tolerances.CHANGED_TILT_PER_PX:g} deg/px {words.resolves}")
+    if per_px > words.limit_per_px:
+        limits.append(f"the ~{words.limit_per_px:g} deg/px {words.resolves}")
     if calibrated_per_px is not None and per_px > tolerances.UNCALIBRATED_STEEPNESS_FACTOR * calibrated_per_px:
         limits.append(f"the {calibrated_per_px:.2f} deg/px of the steepest calibration press")
     return Steepness(diameter, tilt, tuple(limits), words) if limits else None

@@ -54,6 +54,31 @@ def test_holes_are_filled_as_scipy_ndimage_fills_them(mask):
     np.testing.assert_array_equal(masks.fill_holes(open_ring), open_ring)
 
 
+@pytest.mark.parametrize("radius", [0, 1, 4])
+def test_closing_is_scipy_ndimages_by_a_disc_with_nothing_beyond_the_image(mask, radius):
+    import cv2
+
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1)).astype(bool)
+    padded = ndimage.binary_closing(np.pad(mask, radius), disc)  # scipy's own erodes the image's border in
+    closed = masks.close(mask, radius)
+    np.testing.assert_array_equal(closed, padded[radius : radius + mask.shape[0], radius : radius + mask.shape[1]])
+    assert closed.dtype == bool and closed.shape == mask.shape and not (mask & ~closed).any()
+
+
+def test_closing_fills_a_notch_narrower_than_its_disc_and_keeps_a_wider_one():
+    square = np.zeros((40, 40), bool)
+    square[5:35, 5:35] = True
+    narrow, wide = square.copy(), square.copy()
+    narrow[18:24, 5:15] = False  # 6 px wide, 10 deep, open to the outside: no hole
+    wide[15:25, 5:15] = False  # 10 px wide: wider than the 9 px disc
+    np.testing.assert_array_equal(masks.fill_holes(narrow), narrow)  # what hole filling leaves
+    closed = masks.close(narrow, 4)
+    assert closed[18:24, 6:15].all() and not closed[18:24, 5].any()  # but the mouth's column: the disc reaches it
+    assert (closed & ~narrow).sum() == 6 * 9 and not (closed & ~square).any()
+    closed = masks.close(wide, 4)
+    assert not closed[15:25, 5:11].any() and not (closed & ~square).any()  # its inner corners rounded only
+
+
 def test_sample_grid_is_the_coarsest_regular_grid_with_enough_pixels():
     from nlipscalib.core.masks import sample_grid
 
