@@ -84,8 +84,10 @@ class BracketWatch:
                 self.board.set_all(colours)
                 return
             except BoardResetError as exc:
-                step = f"setting {self._leds()}"
-                self._reset(exc, attempt, step, f"{step}: they are set again; no frame is lost")
+                step = f"the LEDs' change to {self._leds()}"
+                self._reset(
+                    exc, attempt, step, f"at {step}: sent again (no frame was read since the board last answered)"
+                )
 
     def capture(self) -> np.ndarray:
         """One frame, kept once the board answered ``STATE`` after it was read; taken again (the camera's flush

@@ -134,6 +134,29 @@ def test_a_reset_whose_banner_is_lost_is_found_by_the_board_and_the_frame_retake
     np.testing.assert_array_equal(_curve(tmp_path / "r.json"), undisturbed)
 
 
+def test_a_board_reset_as_the_leds_change_between_frames_sends_the_change_again(
+    undisturbed, tmp_path, capsys, monkeypatch
+):
+    """A reboot as the line lighting LEDs 1+7 arrives (after the frame of LEDs 1+2 was answered for by the board):
+    the driver relights LEDs 1+2 and raises; no frame is retaken, the change is sent again (virtual board: the reset
+    placed on a command line)."""
+    board = VirtualUnderTest()
+    seen = SeenBoard(board, lambda reads: reads == READS["pair"])
+    seen.fault = "on the next change"
+    FAULTS["on the next change"] = lambda b: b.board.reset_on_line(2)  # after the STATE: the ALL of LEDs 1+7
+    try:
+        assert _calibrate(board, seen, tmp_path / "r.json", monkeypatch) == 0
+    finally:
+        del FAULTS["on the next change"]
+    err = capsys.readouterr().err
+    assert (
+        f"{board.url}: the LED board reset (it printed its boot banner) at the LEDs' change to LEDs 1+7 lit: sent "
+        "again (no frame was read since the board last answered)"
+    ) in err, err
+    assert err.count("the LED board reset") == 1, err
+    np.testing.assert_array_equal(_curve(tmp_path / "r.json"), undisturbed)
+
+
 @pytest.mark.parametrize("fault", FAULTS)
 def test_a_board_reset_at_every_attempt_is_one_line_and_the_same_command_runs_again(
     board, fault, undisturbed, tmp_path, capsys, monkeypatch
