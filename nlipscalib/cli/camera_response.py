@@ -20,7 +20,7 @@ import contextlib
 import datetime
 import functools
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -411,11 +411,13 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     import numpy as np
 
     from ..device.additivity import pair_exposure
+    from ..device.bracket_watch import BracketWatch
     from ..device.camera import CameraSettings, apply_settings, open_source, report_refusals, reported_exposure_ms
     from ..device.lights_out import lights_out_on_exit
     from ..device.port import BAUD_RATE
     from ..device.response_fit import check_exposures
     from ..device.virtual_board import start_board
+    from ..progress import say
     from .capture import open_leds
 
     settings = CameraSettings(
@@ -430,7 +432,9 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     board = start_board(
         args.port, args.adalight or max(args.led, 12), adalight=args.adalight is not None, baudrate=BAUD_RATE
     )
+    taken_whole = False
     with (
+        _reset_after_the_bracket(args.port, lambda: taken_whole),
         board if board is not None else contextlib.nullcontext(),
         open_leds(args.port, args.adalight, args.baud) as controller,
         lights_out_on_exit(controller),
@@ -446,11 +450,6 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
                 "taken at several exposures with the camera's own tool: --bracket FOLDER, without --port"
             )
 
-        def light():
-            colours = np.zeros((controller.n_leds, 3), np.uint8)
-            colours[args.led - 1] = args.level
-            controller.set_all(colours)
-
         refused: dict[str, None] = {}  # each exposure's readback, said once after the bracket: not a line a step
 
         def set_exposure(ms: float) -> float:
@@ -460,22 +459,58 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
             refused.update(dict.fromkeys(line for line in lines if not line.startswith("exposure:")))
             return reported_exposure_ms(cap, ms)
 
+        # every frame kept once the board answered after it; one a reset may have darkened taken again
+        watch = BracketWatch(source, controller, set_exposure, say)
+        lit = np.zeros((controller.n_leds, 3), np.uint8)
+        lit[args.led - 1] = args.level
         asked = _backend_exposures(args.camera, cap.getBackendName(), exposures)
-        frames, taken = take_bracket(source, light, set_exposure, asked)
+        frames, taken = take_bracket(watch, functools.partial(watch.set_colours, lit), watch.set_exposure, asked)
         frames, exposures = as_reported(str(args.camera), asked, taken, frames)
         check_exposures(exposures, f"camera {args.camera}")
-        lights_off = functools.partial(controller.set_all, np.zeros((controller.n_leds, 3), np.uint8))
-        dark = take_dark(source, lights_off, set_exposure, min(exposures))
+        lights_off = functools.partial(watch.set_colours, np.zeros_like(lit))
+        dark = take_dark(watch, lights_off, watch.set_exposure, min(exposures))
         bits = source.bit_depth
         codes = [to_codes(f, bits, args.black_level) for f in frames]
         at = pair_exposure(codes, exposures)
-        taken = take_additivity(source, controller.set_all, set_exposure, controller.n_leds, args.led, args.level, at)
+        n_leds = controller.n_leds
+        taken = take_additivity(watch, watch.set_colours, watch.set_exposure, n_leds, args.led, args.level, at)
         fresh = [line for line in refused if line not in source.refused]  # said when the camera opened
         if fresh:
             report_refusals(args.camera, ["; ".join(fresh)])
+        taken_whole = True
     dark = (to_codes(dark, bits, args.black_level), min(exposures), dn_per_code(bits, args.black_level))
     shots = additivity_codes(taken, at, bits, args.black_level)
     return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level, dark, shots
+
+
+@contextlib.contextmanager
+def _reset_after_the_bracket(port: str, taken_whole: Callable[[], bool]) -> Iterator[None]:
+    """A board reset found by the LEDs' OFF as the bracket closes (``lights_out_on_exit``), once ``taken_whole()``:
+    said in one warning, and the curve fitted and written, exit 0. One before that goes on (the bracket's own line
+    when a reset cut short every attempt at a frame, ``device.bracket_watch``), with :data:`STOPPED`.
+
+    Why a warning: every frame was kept only once the board answered a ``STATE`` after it was read, and the LEDs
+    were switched off (acknowledged) after the last one, so the reset darkened no frame; it ended with the driver's
+    "... retake any frame captured since the previous command", exit 2, nothing written, until s40."""
+    from ..device.errors import BROWN_OUT_ADVICE, UNPLUGGED_REASON, BoardResetError
+
+    try:
+        yield
+    except BoardResetError as exc:
+        if not taken_whole():
+            raise BoardResetError(f"{exc}; {STOPPED}", exc.reason) from None
+        cable = ", or its USB cable is loose" if exc.reason == UNPLUGGED_REASON else ""
+        import logging
+
+        logging.getLogger(__name__).warning(
+            "%s: the LED board reset after the bracket's last frame (%s; found as the LEDs were switched off at the "
+            "end): each frame was kept once the board answered after it was read, so none was taken with the LEDs "
+            "dark and the curve is fitted from them all; the LEDs are off. %s%s",
+            port,
+            exc.reason,
+            BROWN_OUT_ADVICE[0].upper() + BROWN_OUT_ADVICE[1:],
+            cable,
+        )
 
 
 def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) -> tuple[float, ...]:
