@@ -83,11 +83,13 @@ frame: log(reference / solved) -4.3 permille at the centre, -2.2 at a third of t
 so the median over all anchors lands where the far gel puts it, not where the contact lies (cube1 whole frame: its
 contact wants -4.9, the anchors near it say -4.4, all of them -3.2: contact depth RMSE 29.6 um). Anchors near the
 contact alone (within 10 px) follow the wave there but lose where the contact's own solved depth sits off the wave
-(sphere1 and coin1: +0.5 to +1 permille over the wave at the same radius, a bias of the dent's solve no anchor sees):
-sphere1 whole 10.5 -> 13.1 um, coin1 --roi auto 55.5 -> 59.2. Offline on 29 solves (the 22 twin rows of
-s40-outline and the README's seven bench cases; benchmarks/RESULTS.md, s40-rescale) a fall-off of 0.1 W was better
-than the plain median in 19 rows, within 3 % in 8, worse in 2 (by up to 0.9 %); 0.05 W kept more of the near
-anchors' gains but lost 2.1 % on a bench case, 0.2 W kept less."""
+(sphere1 and coin1: +0.3 to +1.3 permille over the wave at the same radius, a bias of the dent's solve no anchor
+sees): sphere1 whole 10.5 -> 13.1 um, coin1 --roi auto 55.5 -> 59.2. On 29 solves (the 22 twin rows of s40-outline
+and the README's seven bench cases, through the CLI; benchmarks/RESULTS.md, s40-rescale) a fall-off of 0.1 W was
+better than the plain median in 19 rows (sphere1 whole 10.5 -> 7.9 um, cube1 whole 29.6 -> 25.4), within 3 % in 8
+(no bench case worse than +0.9 %), worse in 2 (+4.2, +5.4 %: the wide view's polar-70 whole frames with the design
+LEDs, whose contact reaches the held outline); 0.05 W kept more of the near anchors' gains but lost 2.1 % on a bench
+case, 0.2 W kept less."""
 
 
 def anchor_weights(
