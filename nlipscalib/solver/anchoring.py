@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import ndimage
 
 from ..core import tolerances
 from ..core.masks import components
@@ -261,7 +260,10 @@ def contact_distance(free: np.ndarray) -> np.ndarray:
     labels, sizes = components(free)
     if not sizes.size:
         return np.zeros(free.shape)
-    return ndimage.distance_transform_edt(labels != 1 + int(np.argmax(sizes)))
+    import cv2  # here, as core.masks does: importing the solver imports no OpenCV (nor scipy.ndimage, ~0.05 s)
+
+    off = (labels != 1 + int(np.argmax(sizes))).astype(np.uint8)
+    return cv2.distanceTransform(off, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64)  # exact Euclidean
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
