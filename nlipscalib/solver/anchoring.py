@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 
 from ..core import tolerances
+from ..core.masks import components
 from .contact import ContactMap
 from .nlips import SolveResult
 from .outline import gel_outline, outline_rings
@@ -78,6 +79,25 @@ box tilts 33-59 % more the same way and the contact's normals with it (a tilt co
 the rest -0.04 to +0.06). Where the unheld error grows toward the outline (the flat cubes: +129-223 um held side, -19
 to -105 far side) the same hold untilts the box. No truth-free measure of an unheld solve (the held pixels' depth off
 the reference against the plain anchors', the residual) separates the two (benchmarks/RESULTS.md, s40-outline)."""
+
+
+RESCALE_FALLOFF = 0.1
+"""The depth rescale (:func:`rescale_to_anchors`) weighs an anchored pixel ``1 / (1 + d / (RESCALE_FALLOFF * W))``,
+d its distance in pixels from the solve's contact (the largest connected patch of solved pixels not anchored), W the
+image's width: the median of reference over solved depth is taken mostly near the contact, and the far gel still
+counts (a ring of anchors at distance d holds ~d pixels at ~1/d weight each). Why: the solved depth's error off
+the reference is a radial wave about the image's centre (the point LED model's; the 640x480 bench renders, whole
+frame: log(reference / solved) -4.3 permille at the centre, -2.2 at a third of the width out, -3 at the gel's edge),
+so the median over all anchors lands where the far gel puts it, not where the contact lies (cube1 whole frame: its
+contact wants -4.9, the anchors near it say -4.4, all of them -3.2: contact depth RMSE 29.6 um). Anchors near the
+contact alone (within 10 px) follow the wave there but lose where the contact's own solved depth sits off the wave
+(sphere1 and coin1: +0.3 to +1.3 permille over the wave at the same radius, a bias of the dent's solve no anchor
+sees): sphere1 whole 10.5 -> 13.1 um, coin1 --roi auto 55.5 -> 59.2. On 29 solves (the 22 twin rows of s40-outline
+and the README's seven bench cases, through the CLI; benchmarks/RESULTS.md, s40-rescale) a fall-off of 0.1 W was
+better than the plain median in 19 rows (sphere1 whole 10.5 -> 7.9 um, cube1 whole 29.6 -> 25.4), within 3 % in 8
+(no bench case worse than +0.9 %), worse in 2 (+4.2, +5.4 %: the wide view's polar-70 whole frames with the design
+LEDs, whose contact reaches the held outline); 0.05 W kept more of the near anchors' gains but lost 2.1 % on a bench
+case, 0.2 W kept less."""
 
 
 def anchor_weights(
@@ -200,8 +220,9 @@ def rescale_to_anchors(
     result: SolveResult, reference_depth: np.ndarray, weights: np.ndarray | None
 ) -> tuple[SolveResult, float | None]:
     """``result`` with its depth and points scaled about the camera's centre by the median over the anchored pixels
-    (``weights`` > 1, reconstructed) of reference over solved depth, and that scale (None, ``result`` unchanged:
-    no anchored pixel).
+    (``weights`` > 1, reconstructed) of reference over solved depth, each weighed by its nearness to the contact
+    (:data:`RESCALE_FALLOFF`, :func:`contact_distance`), and that scale (None, ``result`` unchanged: no anchored
+    pixel).
 
     Why: the data pull the depth scale off the reference against the anchors, in a box (``--roi auto``'s or an
     explicit one: 0.1-0.5 %, cube1's outer ring 0.074 mm too far, its contact's depth RMSE 0.069 mm) and on the whole
@@ -224,14 +245,39 @@ def rescale_to_anchors(
     """
     if weights is None:
         return result, None
-    anchored = (weights > 1) & result.reconstructed & np.isfinite(reference_depth)
+    solved = result.reconstructed & np.isfinite(reference_depth)
+    anchored = (weights > 1) & solved
     if not anchored.any():
         return result, None
     ratio = np.log(reference_depth[anchored]) - np.log(result.depth[anchored].astype(np.float64))
-    scale = float(np.exp(np.median(ratio)))
+    near = 1.0 / (1.0 + contact_distance(solved & (weights <= 1))[anchored] / (RESCALE_FALLOFF * weights.shape[1]))
+    scale = float(np.exp(weighted_median(ratio, near)))
     report = {**result.report, "anchor_scale": scale}
     depth, points = (
         (result.depth * scale).astype(result.depth.dtype),
         (result.points * scale).astype(result.points.dtype),
     )
     return dataclasses.replace(result, depth=depth, points=points, report=report), scale
+
+
+def contact_distance(free: np.ndarray) -> np.ndarray:
+    """(H, W) float, pixels -- each pixel's distance from the largest 4-connected patch of ``free`` (the solve's
+    contact: its solved pixels not anchored); zero everywhere where ``free`` is empty (every anchor then weighs alike).
+
+    free : (H, W) bool -- solved pixels that anchoring left free (the data do not show them undeformed).
+    """
+    labels, sizes = components(free)
+    if not sizes.size:
+        return np.zeros(free.shape)
+    import cv2  # here, as core.masks does: importing the solver imports no OpenCV (nor scipy.ndimage, ~0.05 s)
+
+    off = (labels != 1 + int(np.argmax(sizes))).astype(np.uint8)
+    return cv2.distanceTransform(off, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64)  # exact Euclidean
+
+
+def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The lower weighted median: the smallest of ``values`` (N,) at which the cumulative ``weights`` (N,) > 0 reach
+    half their sum (numpy's ``quantile(..., weights=)`` is numpy >= 2.0; the package supports 1.26)."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
