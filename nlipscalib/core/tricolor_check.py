@@ -39,7 +39,7 @@ GEL_SAMPLES = 2000
 
 GEL_BLOCK_PIXELS = 32_000
 """Pixels of each frame the check reads, at most: every k-th of the blocks holding the gel samples (in raster order)
-is kept so that they hold no more (500 blocks of 8x8 px at 640x480, a quarter of the gel's; at 160x120 and smaller
+is kept so that they hold no more (500 blocks of 8x8 px at 640x480, a quarter of those; at 160x120 and smaller
 every block). The misfit's noise share is set by the blocks' size, not their number; fewer blocks keep its cost small
 (reading 2000 blocks of 64 px in 14 frames cost ~40 ms of CPU, 500 ~10)."""
 
