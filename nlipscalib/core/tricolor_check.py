@@ -154,8 +154,8 @@ def block_pixels(pixels: np.ndarray, shape: tuple[int, int], side: int) -> np.nd
 def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The tri-colour frame's and every LED image's mean linear light over the blocks (:func:`tricolor_block`,
     :func:`block_pixels`) that hold the flat pixel indices ``pixels`` ((N,) int, row-major; every k-th block, at most
-    :data:`GEL_BLOCK_PIXELS` pixels), less the blocks with a
-    pixel saturated in any of them: ((n, 3), (L, n, 3)) float64, or None when fewer than 10 are left."""
+    :data:`GEL_BLOCK_PIXELS` pixels), less the blocks with a pixel saturated in any of them: ((n, 3), (L, n, 3))
+    float64, or None when fewer than 10 are left."""
     blocks = block_pixels(pixels, press.camera.shape, tricolor_block(press.camera.shape))  # (B, S)
     blocks = blocks[:: max(1, blocks.size // GEL_BLOCK_PIXELS)]
     tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B, S, 3)

@@ -44,6 +44,14 @@ def test_images_of_two_groups_exchanged_are_named_and_their_own_order_fits():
     assert tricolor_fit(tri, within, groups).exchanged is None
 
 
+def test_block_pixels_are_the_blocks_holding_the_samples_once_each_and_none_across_the_frames_edge():
+    from nlipscalib.core.tricolor_check import block_pixels
+
+    blocks = block_pixels(np.array([0, 1, 5, 21, 24]), (5, 6), 2)  # 24: row 4, its block crosses the bottom edge
+    assert blocks.tolist() == [[0, 1, 6, 7], [4, 5, 10, 11], [14, 15, 20, 21]]
+    assert block_pixels(np.array([3, 0]), (5, 6), 1).tolist() == [[0], [3]]
+
+
 def test_groups_whose_images_look_alike_are_not_judged():
     """Frames lit evenly (the capture tests' grey frames, a flat target): every group's sum is the same shape, any
     gains fit, and the check named the frame's colours wrong at capture (s37-tricap); the dome's images tell them."""
