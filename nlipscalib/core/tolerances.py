@@ -977,11 +977,17 @@ s37-swapcheck)."""
 TRICOLOR_MISFIT = 0.03
 """``nlips solve``: the tri-colour frame does not hold the light of the LED images when a channel's fit to the images
 of the LED groups lit in it (each group's images summed, one gain per group and channel, fitted: the camera's colour
-response and the tri-colour exposure) misfits by more than this share of the channel (RMS over RMS, on the gel;
-:func:`nlipscalib.core.tricolor_check.tricolor_fit`). The twin's presses and undeformed captures, clean: 0.014-0.015
-(the images' noise); two images of LEDs of different groups exchanged: 0.044 (the shipped ring's LEDs 4 and 5) and
-0.073 (LEDs designed in pairs); the LEDs' pair whose groups exchanged fits back to 0.015 (benchmarks/RESULTS.md,
-s37-swapcheck)."""
+response and the tri-colour exposure) misfits by more than this share of the channel (RMS over RMS, of the frames'
+means over blocks of 1/60 of the frame's shorter side, 8 px at 640x480, on the gel;
+:func:`nlipscalib.core.tricolor_check.tricolor_fit`, :func:`~nlipscalib.core.tricolor_check.tricolor_samples`).
+The twin's 640x480 sphere presses, clean, at the noise levels of ``nlips experiment studies`` (full well / read
+noise 40000/1, 10000/2 the default, 2500/4, 625/8): 0.001, 0.002, 0.004, 0.008 (on single pixels, as until s40:
+0.008, 0.015-0.018, 0.030-0.031, 0.060-0.063: every press of a camera 2x noisier than the twin's was warned); two
+images of LEDs of different groups exchanged, at every noise level: 0.040-0.054 (the shipped ring's LEDs 4 and 5, the
+weakest of its 32 cross-group pairs; that pair exchanged back fits to the clean misfit), 0.116-0.155 (LEDs 1 and 9);
+another 1 mm press's frame 0.027-0.050 (a third of them under it: not told, as on single pixels); sphere1 with cube1's
+frame 0.040-0.050. The blocks cut the noise, not these disagreements, which are smooth over the dome
+(benchmarks/RESULTS.md, s37-swapcheck, s40-trinoise)."""
 TRICOLOR_GROUPS_APART = 0.02
 """The tri-colour frame is judged only where the LED groups' summed images tell the groups apart: in every channel
 the smallest over the largest singular value of the three groups' sums at the gel samples (each scaled to unit

@@ -4,12 +4,14 @@ tri-colour groups, and of the tri-colour frame itself.
 Why: the tri-colour frame lights LEDs 1-4 red, 5-8 green and 9-12 blue at once (:func:`.leds.tricolor_groups`), so
 each of its channels is the sum of its group's one-LED white images in that channel, times a gain (the tri-colour
 exposure over the LED images', the camera's response to that LED colour): the twin renders it so
-(``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise (1.5 %). Two LED images of
-different groups captured in each other's place break that sum, and exchanging the two back in it mends it: that
-names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In core beside the
-capture: the solve wires it (:mod:`nlipscalib.solver.led_checks`), ``nlips capture`` runs it on each press as it is
-captured (:func:`captured_tricolor_note`, from ``device.session``) and ``nlips calibrate-leds`` on its undeformed
-captures (``solver.calibrate``), where a swapped pair would spoil every LED's calibration.
+(``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise: compared as the means of
+small blocks (:func:`tricolor_samples`), which hold a fraction of a pixel's noise (0.2 % at the twin's default noise,
+under 1 % at 16x its variance; 1.5 % and 6 % on single pixels, s40-trinoise), so a noisier camera is not warned. Two
+LED images of different groups captured in each other's place break that sum, and exchanging the two back in it
+mends it: that names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In
+core beside the capture: the solve wires it (:mod:`nlipscalib.solver.led_checks`), ``nlips capture`` runs it on each
+press as it is captured (:func:`captured_tricolor_note`, from ``device.session``) and ``nlips calibrate-leds`` on its
+undeformed captures (``solver.calibrate``), where a swapped pair would spoil every LED's calibration.
 """
 
 from __future__ import annotations
@@ -34,6 +36,12 @@ from .surface_files import Reference
 GEL_SAMPLES = 2000
 """Gel pixels the check samples, at least (every k-th in raster order), as the solve's LED check
 (``solver.led_checks.CHECK_PIXELS``: the same samples, so the same verdict at capture and at the solve)."""
+
+GEL_BLOCK_PIXELS = 32_000
+"""Pixels of each frame the check reads, at most: every k-th of the blocks holding the gel samples (in raster order)
+is kept so that they hold no more (500 blocks of 8x8 px at 640x480, a quarter of those; at 160x120 and smaller
+every block). The misfit's noise share is set by the blocks' size, not their number; fewer blocks keep its cost small
+(reading 2000 blocks of 64 px in 14 frames cost ~40 ms of CPU, 500 ~10)."""
 
 
 class TricolorFit(NamedTuple):
@@ -113,19 +121,52 @@ def tricolor_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -
     return TricolorFit(misfit, best, best_misfit, sources)
 
 
+def tricolor_block(shape: tuple[int, int]) -> int:
+    """The side, in pixels, of the square blocks whose mean light :func:`tricolor_samples` compares for a frame of
+    ``shape`` (H, W): one :data:`BLOCK_PER_FRAME`-th of its shorter side, at least 1 (8 px at 640x480, 2 at
+    160x120, 1 at 64x48)."""
+    return max(1, round(min(shape) / BLOCK_PER_FRAME))
+
+
+BLOCK_PER_FRAME = 60
+"""Blocks across a frame's shorter side (:func:`tricolor_block`). Why blocks: the frame's relation to the LED images
+is linear, so it holds for any pixels' mean, and the disagreements the check is for (two LED images of different
+groups exchanged, channels in another order, another press's frame) are smooth over a block; the pixels' noise is
+not, and a block's mean holds 1/side of it. On single pixels the twin's clean presses misfit 1.5 % at its default
+noise and 3.1 % / 6.3 % at 4x / 16x its noise variance, over the 3 % threshold (benchmarks/RESULTS.md,
+s40-trinoise)."""
+
+
+def block_pixels(pixels: np.ndarray, shape: tuple[int, int], side: int) -> np.ndarray:
+    """(B, side * side) int: the flat indices (row-major) of each square block of ``side`` px that holds one of the
+    flat pixel indices ``pixels`` ((N,) int), each block once, in raster order; blocks that cross the frame's
+    bottom or right edge are left out."""
+    height, width = shape
+    rows, cols = np.divmod(np.asarray(pixels), width)
+    rows, cols = rows // side, cols // side
+    keep = (rows < height // side) & (cols < width // side)
+    cells = np.unique(rows[keep] * (width // side) + cols[keep])
+    top, left = np.divmod(cells, width // side)
+    dy, dx = np.divmod(np.arange(side * side), side)
+    return (top[:, None] * side + dy) * width + left[:, None] * side + dx
+
+
 def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The tri-colour frame's and every LED image's linear light at the flat pixel indices ``pixels`` ((N,) int,
-    row-major), less the samples saturated in any of them: ((n, 3), (L, n, 3)) float64, or None when fewer than 10
-    are left."""
-    tri_stored = press.tricolor.reshape(-1, 3)[pixels]
-    dark = press.dark.reshape(-1, 3)[pixels]
-    tri = linearise(tri_stored, dark, press.response.black_level, press.response.white_level).astype(np.float64)
-    count = len(press.leds)
-    images = press.linear_led_images.reshape(count, -1, 3)[:, pixels].astype(np.float64)
-    stored = press.led_images.reshape(count, -1, 3)[:, pixels]
-    clipped = press.saturated(tri_stored).any(-1) | press.saturated(stored).any(axis=(0, 2))
+    """The tri-colour frame's and every LED image's mean linear light over the blocks (:func:`tricolor_block`,
+    :func:`block_pixels`) that hold the flat pixel indices ``pixels`` ((N,) int, row-major; every k-th block, at most
+    :data:`GEL_BLOCK_PIXELS` pixels), less the blocks with a pixel saturated in any of them: ((n, 3), (L, n, 3))
+    float64, or None when fewer than 10 are left."""
+    blocks = block_pixels(pixels, press.camera.shape, tricolor_block(press.camera.shape))  # (B, S)
+    blocks = blocks[:: max(1, blocks.size // GEL_BLOCK_PIXELS)]
+    tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B, S, 3)
+    stored = _gather(press.led_images, blocks)  # (L, B, S, 3)
+    clipped = press.saturated(tri_stored).any(axis=(1, 2)) | press.saturated(stored).any(axis=(0, 2, 3))
     if (~clipped).sum() < 10:
         return None
+    black, white = press.response.black_level, press.response.white_level
+    dark = dark.mean(1, dtype=np.float64)  # the stored values' means: linearising is linear, so the light's means
+    tri = linearise(tri_stored.mean(1, dtype=np.float64), dark, black, white).astype(np.float64)
+    images = linearise(stored.mean(2, dtype=np.float64), dark, black, white).astype(np.float64)
     return tri[~clipped], images[:, ~clipped]
 
 
@@ -181,6 +222,17 @@ def tricolor_note(press: Press, pixels: np.ndarray, names: list[str], said: Coll
     ``names``: the LED images' file names, LED ``i`` at ``i``; ``said``: LEDs (0-based) already named as showing
     other LEDs' light (no line when the exchange found is theirs)."""
     return tricolor_verdict(press, pixels, names, said).line
+
+
+def _gather(frames: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """(..., B, S, 3) ``frames``' ((..., H, W, 3)) values at the flat pixel indices ``blocks`` ((B, S) int): each
+    pixel's three values taken as one item (a 6-byte void), 4-5x faster than indexing (N, 3) rows (640x480, 12 LEDs,
+    2000 blocks of 64 px: 4 ms CPU against 18)."""
+    frames = np.ascontiguousarray(frames)
+    flat = frames.reshape(*frames.shape[:-3], -1, 3)
+    items = flat.view(np.dtype((np.void, 3 * frames.itemsize))).reshape(flat.shape[:-1])
+    taken = np.take(items, blocks, axis=-1)
+    return taken.view(frames.dtype).reshape(*taken.shape, 3)
 
 
 def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: Collection[int] = ()) -> TricolorVerdict:
