@@ -28,7 +28,7 @@ ORDER = ("off", "40000/1", "10000/2", "2500/4", "625/8")
 
 
 def _noise(folder: Path) -> str:
-    noise = json.loads((folder / "meta.json").read_text())["provenance"]["scene"]["noise"]
+    noise = json.loads((folder / "meta.json").read_text(encoding="utf-8"))["provenance"]["scene"]["noise"]
     return "off" if not noise["enabled"] else f"{noise['full_well']:.0f}/{noise['read_noise']:.0f}"
 
 
