@@ -65,7 +65,8 @@ class Recording:
 
 
 def frame_digest(frame: np.ndarray) -> str:
-    """16 hex digits of SHA-256 over a frame's values (``frame : (H, W, 3) uint16``); ~1 ms at 640x480."""
+    """16 hex digits of SHA-256 over a frame's values (``frame : (H, W, 3) uint16``): 3 ms at 640x480, once per
+    recording opened."""
     return hashlib.sha256(np.ascontiguousarray(frame).tobytes()).hexdigest()[:16]
 
 
