@@ -148,9 +148,12 @@ def test_camera_response_file_and_device_press_provenance_keys_are_documented():
         *_literal_keys("cli.capture", "_run_device", "provenance"),
         *_literal_keys("cli.capture", "response_provenance"),
         *_literal_keys("emulator", "open_emulated_sensor", "provenance"),
+        *_literal_keys("device.recording_resume", "read_record"),  # a recorded camera's frames read (s41)
     ]
-    assert {"camera_gamma", "camera_response", "tone_curve"} <= set(keys)  # the check reads the writers
-    assert _undocumented(keys, device) == []
+    assert {"camera_gamma", "camera_response", "tone_curve", "from_frame"} <= set(keys)  # the check reads the writers
+    from nlipscalib.device.recording_resume import RECORD_KEY
+
+    assert _undocumented([*keys, RECORD_KEY], device) == []
 
 
 def test_report_json_interreflection_model_onnx_stream_and_experiment_keys_are_documented():

@@ -369,7 +369,9 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     import numpy as np
 
     from ..device.additivity import pair_exposure
+    from ..device.bracket_watch import BracketWatch
     from ..emulator import open_emulated_sensor
+    from ..progress import say
     from ..sim.scene import load_scene
     from .options import check_size_pair
 
@@ -379,26 +381,28 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
     n_leds = len(scene.led_models())
     _check_led(args.led, n_leds)
-    with open_emulated_sensor(scene, [], seed=args.seed, tone_curve=args.emulate_tone_curve) as sensor:
+    # no LEDs-off closes the emulated bracket (its board ends with it): a reset that stops it is one with STOPPED
+    with (
+        _reset_after_the_bracket(f"--emulate {args.emulate}", lambda: False),
+        open_emulated_sensor(scene, [], seed=args.seed, tone_curve=args.emulate_tone_curve) as sensor,
+    ):
         sensor.camera.show(None, index=0)
         sensor.prerender(progress=_bars())
-
-        def light():
-            colours = np.zeros((n_leds, 3), np.uint8)
-            colours[args.led - 1] = args.level
-            sensor.rig.controller.set_all(colours)
 
         def set_exposure(ms: float) -> None:
             sensor.camera.exposure_scale = ms / EMULATED_EXPOSURE_MS
 
-        frames, _ = take_bracket(sensor.camera, light, set_exposure, exposures)
-        lights_off = functools.partial(sensor.rig.controller.set_all, np.zeros((n_leds, 3), np.uint8))
-        dark = take_dark(sensor.camera, lights_off, set_exposure, min(exposures))
+        # its in-process board watched as a real one (its camera renders what the board latched: dark after a reset)
+        watch = BracketWatch(sensor.camera, sensor.rig.controller, set_exposure, say)
+        lit = np.zeros((n_leds, 3), np.uint8)
+        lit[args.led - 1] = args.level
+        frames, _ = take_bracket(watch, functools.partial(watch.set_colours, lit), watch.set_exposure, exposures)
+        lights_off = functools.partial(watch.set_colours, np.zeros_like(lit))
+        dark = take_dark(watch, lights_off, watch.set_exposure, min(exposures))
         noise = scene.noise
         codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
         at = pair_exposure(codes, exposures)
-        set_colours = sensor.rig.controller.set_all
-        taken = take_additivity(sensor.camera, set_colours, set_exposure, n_leds, args.led, args.level, at)
+        taken = take_additivity(watch, watch.set_colours, watch.set_exposure, n_leds, args.led, args.level, at)
     shots = additivity_codes(taken, at, noise.bit_depth, noise.black_level)
     scale = dn_per_code(noise.bit_depth, noise.black_level)
     dark = (to_codes(dark, noise.bit_depth, noise.black_level), min(exposures), scale)

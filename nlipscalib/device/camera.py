@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import logging
 import math
 import os
@@ -45,6 +46,28 @@ log = logging.getLogger(__name__)
 
 class EndOfFrames(CaptureError):
     """A recorded source (folder, image sequence, video) has no frame left: its end, not a fault."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Recording:
+    """What a recorded source (folder of frames, image sequence, video file) is, as a capture resumed on it knows it
+    again (``device.recording_resume``)."""
+
+    name: str
+    """The folder, image-sequence pattern or video file as given (``--camera``), for messages."""
+    path: str
+    """The same, absolute."""
+    frames: int | None
+    """Frames it holds (a video: as its container declares; None: it declares none)."""
+    first_frame: str
+    """Digest of its first frame's stored values (:func:`frame_digest`): another recording at the same path (the
+    rest of a session recorded into the folder again) differs in it, by its noise alone."""
+
+
+def frame_digest(frame: np.ndarray) -> str:
+    """16 hex digits of SHA-256 over a frame's values (``frame : (H, W, 3) uint16``): 3 ms at 640x480, once per
+    recording opened."""
+    return hashlib.sha256(np.ascontiguousarray(frame).tobytes()).hexdigest()[:16]
 
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
@@ -124,11 +147,24 @@ class FrameSource:
     """(65536,) uint16 table (65536, 3: per channel) of the camera's tone curve (``tone_curve_table``) undone on every
     frame as it is converted (:func:`to_stored`): frames linear in the light; None: frames as the camera encoded them
     (a capture's, whose loader undoes its declared curve)."""
+    recording: Recording | None = None
+    """What a recorded source is (a folder, image sequence or video file), for a capture resumed on it; None for a
+    live camera, a stream URL and the emulated camera, whose frames go on in time whatever was read before."""
 
     @property
     def shape(self) -> tuple[int, int]:
         """(H, W) of the frames."""
         raise NotImplementedError
+
+    @property
+    def frames_consumed(self) -> int:
+        """A recorded source's frames read or dropped so far: the index, from 0, of the frame the next read returns."""
+        raise NotImplementedError(f"{type(self).__name__} is no recording")
+
+    def skip_to(self, index: int) -> None:
+        """Make the next read return a recorded source's frame ``index`` (from 0; forward or back);
+        :class:`EndOfFrames` when it holds no such frame."""
+        raise NotImplementedError(f"{type(self).__name__} is no recording")
 
     def read(self) -> np.ndarray:
         """The next frame: (H, W, 3) uint16, RGB, stored values ``DN << (16 - bit_depth)``."""
@@ -210,6 +246,7 @@ class _ImageFiles(FrameSource):
         self.position = 0
         first, self.bit_depth = self._load(self.files[0])
         self._shape = first.shape[:2]
+        self.recording = Recording(name, str(Path(name).resolve()), len(files), frame_digest(first))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -238,6 +275,15 @@ class _ImageFiles(FrameSource):
         frame = self.frame_at(self.position)
         self.position += 1
         return frame
+
+    @property
+    def frames_consumed(self) -> int:
+        return self.position
+
+    def skip_to(self, index: int) -> None:
+        if not 0 <= index < len(self.files):
+            raise EndOfFrames(f"{self.name}: holds {len(self.files)} frames, no frame {index + 1}")
+        self.position = index
 
 
 class FolderSource(_ImageFiles):
@@ -352,6 +398,10 @@ class OpenCVSource(FrameSource):
             raise CaptureError(_not_opened(device, self.live)) from None
         self._shape = frame.shape[:2]
         self._first = frame  # the probe frame is handed out first, so files lose nothing
+        if not self.live and "://" not in str(device):  # a video file (a stream URL goes on in time, as a camera)
+            self.recording = Recording(
+                str(device), str(Path(device).resolve()), self.declared_frames, frame_digest(frame)
+            )
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -386,6 +436,30 @@ class OpenCVSource(FrameSource):
             frame, self._first = self._first, None
             return frame
         return self._grab()
+
+    @property
+    def frames_consumed(self) -> int:
+        if self.recording is None:
+            raise NotImplementedError(f"camera {self.device} is no recording")
+        return self.frames_read - (self._first is not None)  # a file is never flushed: each frame grabbed is read
+
+    def skip_to(self, index: int) -> None:
+        """The video positioned at frame ``index`` by reading from its start (back: rewound to frame 0 first):
+        OpenCV's frame seek (``CAP_PROP_POS_FRAMES``) lands on a key frame near it with some codecs."""
+        if index < self.frames_consumed:
+            self.cap.set(_cv2().CAP_PROP_POS_FRAMES, 0)
+            self.frames_read, self._first = 0, None
+        if self._first is not None and index > self.frames_consumed:
+            self._first = None
+        while self.frames_read < index:
+            if not self.cap.grab():  # grab without retrieve: skipped frames are never converted
+                raise EndOfFrames(f"{self.device}: holds {self.frames_read} frames, no frame {index + 1}")
+            self.frames_read += 1
+        if self._first is None:
+            try:
+                self._first = self._grab()
+            except EndOfFrames:
+                raise EndOfFrames(f"{self.device}: holds {self.frames_read} frames, no frame {index + 1}") from None
 
     def flush(self) -> None:
         # grab() without retrieve(): the stale frames are dequeued but never decoded

@@ -277,6 +277,9 @@ def capture_press(
     light (two LEDs of different colour groups wired in each other's place:
     :func:`nlipscalib.core.tricolor_check.captured_tricolor_note`) is one warning naming the press and the LEDs.
 
+    A recorded camera's frames read by every attempt are recorded in ``provenance.recording``
+    (:mod:`nlipscalib.device.recording_resume`).
+
     Returns
     -------
     dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt; None for an attempt
@@ -285,7 +288,9 @@ def capture_press(
     from ..core.repeated_frames import model_light
     from .errors import BoardResetError
     from .exposure import check_exposure
+    from .recording_resume import read_record, recorded
 
+    start = rig.source.frames_consumed if recorded(rig.source) else None
     moved = []
     for attempt in range(cfg.max_retakes + 1):
         t0 = time.perf_counter()
@@ -320,6 +325,8 @@ def capture_press(
         "white_level": cfg.white_level,
         "tricolor_level": cfg.tricolor_level,
     }
+    if start is not None:
+        provenance |= read_record(rig.source, start)
     gel = None if rig.reference is None else np.isfinite(rig.reference.depth)
     expected = (
         None if rig.reference is None else model_light(rig.reference.depth, rig.reference.normals, rig.camera, rig.leds)
@@ -418,17 +425,35 @@ def run_session(
             continue
         if damaged:
             log.warning("%s: %s; capturing it again", folder, damaged)
-        if k == 0:
-            operator.reference()
-        else:
-            operator.press(k, cfg.presses)
         try:
+            _continue_recording(rig, out, names[:k], name)
+            if k == 0:
+                operator.reference()
+            else:
+                operator.press(k, cfg.presses)
             status[name] = capture_press(rig, folder, cfg, operator, index=k, overwrite=bool(damaged))
         except CaptureError as exc:  # the camera ran out of frames or stopped, the object kept moving, ...
             raise PressNotCaptured(str(exc)) from exc
         if k > 0:
             operator.release(k)
     return status
+
+
+def _continue_recording(rig: Rig, out: Path, before: list[str], name: str) -> None:
+    """A recorded camera (``--camera FOLDER`` or a video) made to give folder ``name`` of the session ``out`` its
+    frames: after those the whole folder before it (of the names ``before``) read, when it read the same recording
+    (:func:`nlipscalib.device.recording_resume.continue_recording`); a warning when it starts anew. A live camera:
+    nothing.
+
+    Why: a resumed capture read the recording from its first frame again, so the next press took the reference's
+    frames (until 2026-12-07)."""
+    from .recording_resume import continue_recording, recorded
+
+    if not recorded(rig.source):
+        return
+    whole = (out / n for n in reversed(before) if is_press_folder(out / n) and not _damaged(out / n))
+    if line := continue_recording(rig.source, next(whole, None), name):
+        log.warning("%s", line)
 
 
 def check_resumable(rig: Rig, out: str | Path, cfg: SessionConfig) -> None:

@@ -61,6 +61,41 @@ def test_video_file_is_read_frame_by_frame(tmp_path):
         open_source(str(tmp_path / "missing.avi"))
 
 
+def test_a_recording_skips_to_a_frame_forward_and_back_and_knows_itself(tmp_path):
+    """What a resumed capture asks of a recorded camera (``device.recording_resume``): frame ``index`` next, the
+    frames read so far, and which recording it is (its path and first frame)."""
+    import shutil
+
+    from nlipscalib.device.camera import EndOfFrames
+
+    folder, path = tmp_path / "frames", tmp_path / "clip.avi"
+    folder.mkdir()
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (32, 24))
+    for k, v in enumerate((40, 80, 120, 160, 200)):
+        cv2.imwrite(str(folder / f"{k}.png"), np.full((24, 32, 3), v, np.uint8))
+        writer.write(np.full((24, 32, 3), v, np.uint8))
+    writer.release()
+    for spec in (folder, path):
+        src = open_source(str(spec))
+        assert src.frames_consumed == 0 and src.recording.path == str(spec.resolve()) and src.recording.frames == 5
+        src.read()
+        assert src.frames_consumed == 1
+        for index in (3, 1, 4, 0):
+            src.skip_to(index)
+            assert src.frames_consumed == index
+            assert abs((int(src.read()[12, 16, 1]) >> 8) - 40 * (index + 1)) <= 3, (spec, index)
+            assert src.frames_consumed == index + 1
+        with pytest.raises(EndOfFrames, match="holds 5 frames, no frame 6"):
+            src.skip_to(5)
+        src.close()
+    shutil.copytree(folder, tmp_path / "copy")
+    (tmp_path / "copy" / "0.png").unlink()
+    ours, copied, again = FolderSource(folder), FolderSource(tmp_path / "copy"), FolderSource(folder)
+    assert ours.recording == again.recording and ours.recording.first_frame != copied.recording.first_frame
+    with open_source(str(path)) as one, open_source(str(path)) as other:
+        assert one.recording == other.recording
+
+
 def test_sequence_patterns_are_one_integer_field():
     from nlipscalib.device.camera import is_sequence_pattern
 

@@ -304,3 +304,116 @@ def test_a_dark_frame_lit_unevenly_is_not_named_a_pedestal_at_capture(tmp_path, 
     board = VirtualBoard(12)
     assert main(capture_args(board.url, frames, camera_file(tmp_path), tmp_path / "s", 0, black_level=0)) == 0
     assert "--black-level" not in capsys.readouterr().err
+
+
+def tagged_recording(tmp_path, tags, name: str = "recording"):
+    """Recorded 8-bit frames, one sequence of :data:`SEQUENCE` per tag in ``tags``: the frames of
+    :func:`frames_folder` with both tri-colour frames at 150 + 2 * tag (their press's number, told from the stored
+    tri-colour image); a tag of None: a sequence whose object moved (its check frame at 200, the press retaken)."""
+    folder = tmp_path / name
+    folder.mkdir()
+    for s, tag in enumerate(tags):
+        for k in range(SEQUENCE):
+            tri = 150 + 2 * (tag or 0) if tag is not None or k == 0 else 200
+            value = DARK if k == 1 else tri if k in (0, SEQUENCE - 1) else 60 + 10 * k
+            cv2.imwrite(str(folder / f"{s * SEQUENCE + k:04d}.png"), np.full((H, W, 3), value, np.uint8))
+    return folder
+
+
+def tag_of(press) -> int:
+    """The tag of the recorded sequence a captured folder's tri-colour image came from (:func:`tagged_recording`)."""
+    tri = cv2.imread(str(press / "tricolor.png"), cv2.IMREAD_UNCHANGED)
+    return (int(np.median(tri)) >> 8) - 150 >> 1
+
+
+def recorded(press) -> dict:
+    return json.loads((press / "meta.json").read_text(encoding="utf-8"))["provenance"]["recording"]
+
+
+def test_a_capture_resumed_on_its_recording_continues_it_where_the_kept_folders_stopped(
+    tmp_path, capsys, monkeypatch, impatient, caplog
+):
+    """A folder of frames given as --camera was read from its first frame on every run: a session interrupted after
+    press 1 and resumed took the reference's frames (1-15) for press 2. Now press 2 holds the recording's frames
+    31-45, those it holds for press 2 (reference 1-15, press 1 16-30), though the interrupted run had read 3 of them:
+    the attempt cut short was not kept, so its frames are read again; the session is the uninterrupted one's."""
+    import logging
+
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, 2 * SEQUENCE + 4, lambda b: b.unplug())  # mid-way through press 2
+    frames, out, camera = tagged_recording(tmp_path, [0, 1, 2, 3]), tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, frames, camera, out, 3)) == 2
+    assert "run again to resume from press_0002" in capsys.readouterr().err
+    monkeypatch.undo()  # the board back
+    caplog.set_level(logging.WARNING)
+    assert main(capture_args(VirtualBoard(12).url, frames, camera, out, 3)) == 0
+    assert not [r for r in caplog.records if str(frames) in r.getMessage()]  # nothing to say: the same recording
+    assert [tag_of(out / n) for n in ("reference", "press_0001", "press_0002", "press_0003")] == [0, 1, 2, 3]
+    spans = [(recorded(out / n)["from_frame"], recorded(out / n)["frames_read"]) for n in ("press_0002", "press_0003")]
+    assert spans == [(2 * SEQUENCE, SEQUENCE), (3 * SEQUENCE, SEQUENCE)]
+    assert recorded(out / "reference") | {"from_frame": 0} == {
+        "path": str(frames.resolve()),
+        "frames": 4 * SEQUENCE,
+        "first_frame": recorded(out / "press_0003")["first_frame"],
+        "from_frame": 0,
+        "frames_read": SEQUENCE,
+    }
+
+
+def test_a_retaken_press_counts_every_attempts_frames_when_the_session_is_resumed(tmp_path, capsys):
+    """Press 1 moved in its first attempt and was retaken (frames 16-45): a second run with more --presses continues
+    the recording at frame 46, press 2's, not after press 1's kept attempt alone."""
+    board = VirtualBoard(12)
+    frames, out, camera = tagged_recording(tmp_path, [0, None, 1, 2]), tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, frames, camera, out, 1)) == 0
+    assert recorded(out / "press_0001") | {"path": None} == {
+        "path": None,
+        "frames": 4 * SEQUENCE,
+        "first_frame": recorded(out / "reference")["first_frame"],
+        "from_frame": SEQUENCE,
+        "frames_read": 2 * SEQUENCE,
+    }
+    assert main(capture_args(board.url, frames, camera, out, 2)) == 0
+    assert "press_0002: captured" in capsys.readouterr().err
+    assert [tag_of(out / n) for n in ("reference", "press_0001", "press_0002")] == [0, 1, 2]
+
+
+def test_another_recording_given_on_resume_is_read_from_its_first_frame_with_one_warning(tmp_path, capsys, caplog):
+    """The rest of the session recorded apart (the way to resume until 2026-12-07) is read from its first frame, and
+    said: the user who meant to give the first recording again learns it."""
+    import logging
+
+    board = VirtualBoard(12)
+    first, out, camera = tagged_recording(tmp_path, [0, 1]), tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, first, camera, out, 3)) == 2  # ran out of frames at press 2
+    rest = tagged_recording(tmp_path, [2, 3], name="rest")
+    caplog.set_level(logging.WARNING)
+    assert main(capture_args(board.url, rest, camera, out, 3)) == 0
+    said = [r.getMessage() for r in caplog.records if str(rest) in r.getMessage()]
+    assert said == [
+        f"{rest}: another recording than the one {out / 'press_0001'} read ({first.resolve()}, up to its frame 30): "
+        "read from its first frame for press_0002"
+    ]
+    assert [tag_of(out / n) for n in ("press_0001", "press_0002", "press_0003")] == [1, 2, 3]
+    assert recorded(out / "press_0003")["from_frame"] == SEQUENCE
+
+
+def test_a_recording_read_to_its_end_is_one_line_and_goes_on_once_frames_are_added(tmp_path, capsys):
+    """Resumed with the recording it had read to its end: one line saying so (not the reference's frames taken again
+    for press 2); the frames of the rest added to it, the same command goes on."""
+    board = VirtualBoard(12)
+    frames, out, camera = tagged_recording(tmp_path, [0, 1]), tmp_path / "s", camera_file(tmp_path)
+    assert main(capture_args(board.url, frames, camera, out, 2)) == 2
+    capsys.readouterr()
+    assert main(capture_args(board.url, frames, camera, out, 2)) == 2
+    assert errors(capsys.readouterr().err) == [
+        f"nlips capture: error: {frames}: no frame left for press_0002: the session's folders up to press_0001 read "
+        f"its frames 1-30 and it holds 30; give a recording with more frames (the same first ones), or one that "
+        f"begins at press_0002 (another recording is read from its first frame); session {out}: 2 of 3 folders "
+        "captured (reference, press_0001); run again to resume from press_0002"
+    ]
+    for k, path in enumerate(sorted(tagged_recording(tmp_path, [0, 1, 2], name="longer").iterdir())):
+        if k >= 2 * SEQUENCE:
+            path.rename(frames / path.name)
+    assert main(capture_args(board.url, frames, camera, out, 2)) == 0
+    assert tag_of(out / "press_0002") == 2

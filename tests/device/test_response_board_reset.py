@@ -206,3 +206,76 @@ def test_a_board_reset_after_the_last_frame_is_a_warning_and_the_curve_is_writte
     ), warnings
     np.testing.assert_array_equal(_curve(out), undisturbed)
     assert not board.latched().any()  # the LEDs left dark
+
+
+EMULATED = ["calibrate-camera-response", "--emulate", "nlipstac", "--width", "64", "--height", "48", "--spp", "1"]
+EMULATED_READS = 3
+"""The emulated camera's reads a frame: its flush of 2, then the frame (``open_emulated_sensor``'s defaults)."""
+
+
+def _emulated(tmp_path, monkeypatch, reset_at=lambda reads: False) -> int:
+    """``nlips calibrate-camera-response --emulate`` with its in-process board reset before the camera's reads
+    ``reset_at`` says (from 1): the twin is rendered lit by what the board latched, so those frames are dark."""
+    pytest.importorskip("mitsuba")
+    from nlipscalib import emulator
+
+    real = emulator.open_emulated_sensor
+
+    def opened(*args, **kwargs):
+        sensor = real(*args, **kwargs)
+        read, reads = sensor.camera.read, [0]
+
+        def resetting():
+            reads[0] += 1
+            if reset_at(reads[0]):
+                sensor.board.reset()
+            return read()
+
+        monkeypatch.setattr(sensor.camera, "read", resetting)
+        return sensor
+
+    monkeypatch.setattr(emulator, "open_emulated_sensor", opened)
+    return main([*EMULATED, "--out", str(tmp_path / "r.json")])
+
+
+@pytest.fixture(scope="module")
+def emulated_undisturbed(tmp_path_factory):
+    out = tmp_path_factory.mktemp("emulated")
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        assert _emulated(out, monkeypatch) == 0
+    return _curve(out / "r.json")
+
+
+def test_a_reset_of_the_emulated_sensors_board_during_the_bracket_is_watched_as_a_real_boards(
+    emulated_undisturbed, tmp_path, capsys, monkeypatch
+):
+    """`--emulate` was not watched (s40): its board's reset before the 1 ms frame went unseen, the frame kept dark
+    (the twin renders what the board latched) and the curve fitted through it. Now as with --port: the frame taken
+    again with the LED lit, the curve the undisturbed bracket's up to the retaken frames' own noise."""
+    first = 2 * EMULATED_READS + 1  # the 3rd exposure's (1 ms) first read
+    assert _emulated(tmp_path, monkeypatch, lambda reads: reads == first) == 0
+    err = capsys.readouterr().err
+    retakes = [line for line in err.splitlines() if "the LED board reset" in line]
+    assert len(retakes) == 1 and retakes[0].endswith(
+        "the LED board reset (it printed its boot banner) as the 1 ms frame with LED 1 lit was taken: the LEDs are "
+        "set again and it is taken again"
+    ), err
+    assert np.abs(_curve(tmp_path / "r.json") - emulated_undisturbed).max() < 0.01
+
+
+def test_a_reset_of_the_emulated_sensors_board_at_every_attempt_stops_the_bracket_in_one_line(
+    tmp_path, capsys, monkeypatch
+):
+    """A board in a boot loop as its LED lights, emulated: the device's line, exit 2, nothing written."""
+    first = 2 * EMULATED_READS + 1
+    at = (first, first + EMULATED_READS, first + 2 * EMULATED_READS)
+    assert _emulated(tmp_path, monkeypatch, lambda reads: reads in at) == 2
+    *retakes, line = errors_only(capsys.readouterr().err)
+    assert len(retakes) == 2 and all("as the 1 ms frame with LED 1 lit was taken" in r for r in retakes), retakes
+    assert line.startswith("nlips calibrate-camera-response: error: nlipsemu://") and line.endswith(
+        ": the LED board reset at each of 3 attempts at the 1 ms frame with LED 1 lit (it printed its boot banner), "
+        "so the bracket stopped: a board that resets as its LEDs light is often browning out (the LEDs powered from "
+        "the board's 5 V, or a supply too weak: firmware/README.md, Wiring, in the nlipscalib source distribution or "
+        "repository); nothing was written (a tone curve is measured from the whole bracket): run it again"
+    ), line
+    assert not (tmp_path / "r.json").exists()
