@@ -215,28 +215,41 @@ def block_samples(press: Press, pixels: np.ndarray) -> BlockSamples | None:
     side = tricolor_block(press.camera.shape)
     blocks = block_pixels(pixels, press.camera.shape, side)  # (B, S)
     blocks = blocks[:: max(1, blocks.size // GEL_BLOCK_PIXELS)]
+    half = block_halves(side)
+    first = blocks.shape[1] if half is None else int(half.sum())
+    if half is not None:  # each block's first half's pixels first: both halves' means of views, nothing copied
+        blocks = blocks[:, np.argsort(~half, kind="stable")]
     tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B, S, 3)
     stored = _gather(press.led_images, blocks)  # (L, B, S, 3)
     clipped = press.saturated(tri_stored).any(axis=(1, 2)) | press.saturated(stored).any(axis=(0, 2, 3))
     if (~clipped).sum() < 10:
         return None
-    tri_stored, dark, stored = tri_stored[~clipped], dark[~clipped], stored[:, ~clipped]
     black, white = press.response.black_level, press.response.white_level
-    half = block_halves(side)
 
-    def light(frames: np.ndarray, dark: np.ndarray) -> np.ndarray:  # linearising is linear: the light's means
-        return linearise(frames, dark, black, white).astype(np.float64)
+    def halves(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (..., B, S, 3) -> 2 x (..., B, 3): sums
+        return frames[..., :first, :].sum(-2, dtype=np.float64), frames[..., first:, :].sum(-2, dtype=np.float64)
 
-    def means(frames: np.ndarray, pick: np.ndarray | None = None) -> np.ndarray:  # (..., B, S, 3) -> (..., B, 3)
-        return (frames if pick is None else frames[..., pick, :]).mean(-2, dtype=np.float64)
+    def light(sums: tuple[np.ndarray, np.ndarray], dark: tuple[np.ndarray, np.ndarray], pick: int | None) -> np.ndarray:
+        # linearising is linear: the light's means are the stored values' means linearised
+        count = (first, blocks.shape[1] - first)
+        if pick is None:
+            frames, darks = sum(sums) / blocks.shape[1], sum(dark) / blocks.shape[1]
+        else:
+            frames, darks = sums[pick] / count[pick], dark[pick] / count[pick]
+        return linearise(frames, darks, black, white).astype(np.float64)[..., ~clipped, :]
 
-    tri, images = light(means(tri_stored), means(dark)), light(means(stored), means(dark))
+    dark_sums, tri_sums, image_sums = halves(dark), halves(tri_stored), halves(stored)
+    tri, images = light(tri_sums, dark_sums, None), light(image_sums, dark_sums, None)
     if half is None:
         return BlockSamples(tri, images, None, None, 0.0)
-    first = [light(means(frames, half), means(dark, half)) for frames in (tri_stored, stored)]
-    second = [light(means(frames, ~half), means(dark, ~half)) for frames in (tri_stored, stored)]
-    share = float(half.mean())
-    return BlockSamples(tri, images, first[0] - second[0], first[1] - second[1], share * (1 - share))
+    share = first / blocks.shape[1]
+    return BlockSamples(
+        tri,
+        images,
+        light(tri_sums, dark_sums, 0) - light(tri_sums, dark_sums, 1),
+        light(image_sums, dark_sums, 0) - light(image_sums, dark_sums, 1),
+        share * (1 - share),
+    )
 
 
 def noise_misfits(samples: BlockSamples, groups: np.ndarray) -> np.ndarray:
