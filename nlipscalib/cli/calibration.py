@@ -108,8 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="keep presses whose tri-colour frame does not hold their LED images' light (two images of different "
         "colour groups captured in each other's place, the channels in another order, another press's frame: the "
-        "check `nlips solve` warns of), each warned of; by default each is left out of the dataset with one line, and "
-        "a session whose every capture disagrees the same way (a camera that gives BGR for RGB) is refused in one",
+        "check `nlips solve` warns of), each warned of; by default each is left out of the dataset with one line "
+        "(before the solves, unsolved, where no solve mends it), and a session whose every capture disagrees the same "
+        "way (a camera that gives BGR for RGB) is refused in one",
     )
     add_allow_edited(p, "solve and sample")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
