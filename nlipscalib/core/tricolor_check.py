@@ -407,7 +407,7 @@ def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: C
 
 
 def allowed_said(fit: TricolorFit) -> str:
-    """ "3 % allowed, this capture's noise leaves 0.4 %" (or "4.8 % allowed: 2x the 2.4 % this capture's noise
+    """ "3 % allowed, this capture's noise leaves 0.4 %" (or "4.5 % allowed: 1.5x the 3.0 % this capture's noise
     leaves") for ``fit``'s :attr:`~TricolorFit.allowed` and :attr:`~TricolorFit.noise`."""
     if not np.isfinite(fit.noise):
         return f"{100 * fit.allowed:.0f} % allowed"

@@ -190,7 +190,7 @@ def test_a_camera_whose_blocks_keep_more_noise_than_the_floor_fits_and_an_exchan
 ):
     """The misfit allowed follows the noise the capture itself shows (s41-tricheck): each pixel's 22 % noise leaves
     ~4 % over the 6x6 px blocks of a 480x360 frame, over the 3 % floor (a camera of more noise, or a smaller frame's
-    smaller blocks: warned, clean, until s41); measured between each block's halves, 8 % is allowed, and two LED
+    smaller blocks: warned, clean, until s41); measured between each block's halves, 6 % is allowed, and two LED
     images of different groups exchanged under that noise (9-10 % on their own) are still named."""
     from nlipscalib.core import tolerances
     from nlipscalib.core.tricolor_check import captured_tricolor_note
@@ -201,7 +201,7 @@ def test_a_camera_whose_blocks_keep_more_noise_than_the_floor_fits_and_an_exchan
     swapped = [0, 1, 2, 4, 3, *range(5, 12)]  # led_04 / led_05: the red and green groups
     line = captured_tricolor_note(tmp_path / "swapped", *_noisy_frames(rng, 0.22, swapped), None)
     assert line is not None and "with led_04.png (red group) and led_05.png (green) exchanged it fits" in line, line
-    assert "% allowed: 2x the " in line and "% this capture's noise leaves" in line
+    assert "% allowed: 1.5x the " in line and "% this capture's noise leaves" in line
     monkeypatch.setattr(tolerances, "TRICOLOR_NOISE_MARGIN", 0.0)  # the fixed 3 % alone, as until s41
     warned = captured_tricolor_note(tmp_path / "clean", *clean, None)
     assert warned is not None and "does not hold the light" in warned
@@ -223,7 +223,7 @@ def test_the_noise_misfit_measured_between_block_halves_is_the_clean_misfit_and_
     noisy = samples(0.1)
     clean_misfit, noise = channel_misfits(noisy.tricolor, noisy.images, groups), noise_misfits(noisy, groups)
     assert np.all(noise > 0.01) and np.all(np.abs(noise / clean_misfit - 1) < 0.2), (noise, clean_misfit)
-    assert allowed_misfit(noise) == pytest.approx(2 * np.max(noise))
+    assert allowed_misfit(noise) == pytest.approx(max(0.03, 1.5 * np.max(noise)))
     swapped = noisy._replace(
         images=noisy.images[[0, 1, 2, 4, 3, *range(5, 12)]],
         images_halves=noisy.images_halves[[0, 1, 2, 4, 3, *range(5, 12)]],
