@@ -44,11 +44,13 @@ def _swapped(count: int, i: int, j: int) -> list[int]:
 
 def _faulty(samples: tc.BlockSamples, order: list[int]) -> tc.BlockSamples:
     """``samples`` with the LED images in ``order`` (two exchanged)."""
-    return samples._replace(images=samples.images[order], images_halves=samples.images_halves[order])
+    halves = None if samples.images_halves is None else samples.images_halves[order]
+    return samples._replace(images=samples.images[order], images_halves=halves)
 
 
 def _bgr(samples: tc.BlockSamples) -> tc.BlockSamples:
-    return samples._replace(tricolor=samples.tricolor[:, ::-1], tricolor_halves=samples.tricolor_halves[:, ::-1])
+    halves = None if samples.tricolor_halves is None else samples.tricolor_halves[:, ::-1]
+    return samples._replace(tricolor=samples.tricolor[:, ::-1], tricolor_halves=halves)
 
 
 def _noisier(press, sigma: float, seed: int):  # noqa: ANN001, ANN202
@@ -67,7 +69,7 @@ def _judge(samples: tc.BlockSamples, groups: np.ndarray) -> tuple[tc.TricolorFit
     """The fit within the misfit allowed for ``samples``' own noise, and that noise (worst channel)."""
     noise = tc.noise_misfits(samples, groups)
     fit = tc.tricolor_fit(samples.tricolor, samples.images, groups, tc.allowed_misfit(noise))
-    return fit, float(np.nanmax(noise))
+    return fit, float(np.nanmax(noise)) if np.isfinite(noise).any() else float("nan")
 
 
 def measure(root: Path, side: int | None, extra: list[float]) -> dict:
