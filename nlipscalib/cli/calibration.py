@@ -108,8 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="keep presses whose tri-colour frame does not hold their LED images' light (two images of different "
         "colour groups captured in each other's place, the channels in another order, another press's frame: the "
-        "check `nlips solve` warns of), each warned of; by default each is left out of the dataset with one line, and "
-        "a session whose every capture disagrees the same way (a camera that gives BGR for RGB) is refused in one",
+        "check `nlips solve` warns of), each warned of; by default each is left out of the dataset with one line "
+        "(before the solves, unsolved, where no solve mends it), and a session whose every capture disagrees the same "
+        "way (a camera that gives BGR for RGB) is refused in one",
     )
     add_allow_edited(p, "solve and sample")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -188,6 +189,7 @@ def run(args: argparse.Namespace) -> int:
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
     damaged = _left_out_damaged(root, presses, out)
     presses = [p for p in presses if p.name not in damaged]
+    judged = {} if args.keep_tricolor_mismatch else tricolor_left_out(root, presses, out, not args.no_progress)
     solve = {"normals": args.normals, "leds": leds}
     if args.led_model != "points":  # recorded when not the default: the datasets of point LEDs keep their records
         solve["led_model"] = args.led_model
@@ -200,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         remove_if_left_empty(stack, [out])
         # held from before the solves: a build of other samples into this --out is refused now, not after them
         stack.enter_context(hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF))
-        return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged)
+        return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged, judged)
 
 
 def check_own_folder(out: Path, presses: list[Path], default: Path) -> None:
@@ -246,9 +248,12 @@ def _solve_and_build(
     cfg: SamplingConfig,
     run: dict,
     damaged: dict[str, str],
+    judged: dict[str, dict],
 ) -> int:
     """The solves, the dataset and its coverage report, and the summary lines (exit status); ``damaged``: the
-    presses left out before solving (:func:`_left_out_damaged`), counted with those the build leaves out."""
+    presses left out before solving (:func:`_left_out_damaged`), counted with those the build leaves out;
+    ``judged``: those left out, unsolved, for their tri-colour frame (:func:`tricolor_left_out`), recorded by the
+    build with those it leaves out."""
     from ..core.cpus import SOLVE_ROI_MEMORY, solve_worker_count
     from ..core.errors import ConfigError
     from ..core.press_meta import image_size, read_meta
@@ -261,7 +266,7 @@ def _solve_and_build(
     # as `nlips solve FOLDER`: one solver per two cores, fewer where memory holds fewer (1280x960: ~1.9 GB each)
     workers = solve_worker_count(args.workers, SOLVE_ROI_MEMORY, *image_size(reference))
     status = solve_all(
-        presses,
+        [p for p in presses if p.name not in judged],
         reference,
         workers=workers,
         progress=not args.no_progress,
@@ -281,7 +286,7 @@ def _solve_and_build(
         (out / name).unlink(missing_ok=True)
     unsampled = dict(damaged)  # a press whose tri-colour image is damaged fails alone, as a failed solve
     build_dataset(
-        solved,
+        [p for p in presses if p in solved or p.name in judged],
         reference,
         out,
         cfg,
@@ -289,6 +294,7 @@ def _solve_and_build(
         run=run,
         failed=unsampled,
         keep_tricolor=args.keep_tricolor_mismatch,
+        judged=judged,
     )
     data = CalibrationDataset(out)
     mismatched = [gone["name"] for gone in data.tricolor_left_out]
@@ -402,6 +408,43 @@ def tricolor_agrees(reference: Path, presses: Sequence[Path], root: Path) -> Non
             continue
         entries.append({"name": press.name, "folder": str(press), RECORD_KEY: record})
     sort_presses(entries, undeformed, reference, root, keep=False)  # raises: the reference disagrees
+
+
+def tricolor_left_out(root: Path, presses: Sequence[Path], out: Path, progress: bool) -> dict[str, dict]:
+    """The presses whose tri-colour frame does not hold their LED images' light, found before any solve, by name with
+    their verdict's record (:meth:`~nlipscalib.core.tricolor_check.TricolorVerdict.record`), each said in one line:
+    left out of the dataset, as the build left them out after solving them (minutes each at 640x480) though the
+    check reads only the capture. ConfigError when that leaves none.
+
+    Only the verdicts no solve mends (:func:`nlipscalib.learn.dataset_tricolor.judged_before_solve`): two LED images
+    of different groups in each other's place are solved, as before, since the solve's LED checks may find them and
+    solve them in the order they show, which the frame then fits; the build judges those after the solve. A press
+    whose shard is in ``out`` already is not judged (a resumed build keeps it with its verdict, reading nothing), nor
+    one that cannot be read (it fails alone, in its own line). Cost: the capture's 14 frames decoded and the check,
+    ~0.1-0.2 s of CPU per 640x480 press (benchmarks/RESULTS.md, s41-tricheck)."""
+    from ..core.capture import load_press
+    from ..core.errors import CaptureError, ConfigError
+    from ..core.tricolor_check import press_tricolor_verdict
+    from ..learn.dataset import SHARD_DIR
+    from ..learn.dataset_tricolor import KEEP_OPTION, judged_before_solve, left_out_line
+    from ..progress import track
+
+    judged = {}
+    unsampled = [p for p in presses if not (out / SHARD_DIR / f"{p.name}.npz").is_file()]
+    for press in track(unsampled, enabled=progress, desc="tri-colour check", unit="press"):
+        try:
+            record = press_tricolor_verdict(load_press(press)).record()
+        except CaptureError:
+            continue
+        if judged_before_solve(record):
+            log.error("%s", left_out_line(record, solved=False))
+            judged[press.name] = record
+    if judged and len(judged) == len(presses):
+        raise ConfigError(
+            f"{root}: no press left whose tri-colour frame holds its LED images' light (each one's line is above); "
+            f"pass {KEEP_OPTION} to keep them"
+        )
+    return judged
 
 
 def responses_agree(reference: Path, presses: Sequence[Path]) -> None:

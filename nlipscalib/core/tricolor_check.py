@@ -6,7 +6,9 @@ each of its channels is the sum of its group's one-LED white images in that chan
 exposure over the LED images', the camera's response to that LED colour): the twin renders it so
 (``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise: compared as the means of
 small blocks (:func:`tricolor_samples`), which hold a fraction of a pixel's noise (0.2 % at the twin's default noise,
-under 1 % at 16x its variance; 1.5 % and 6 % on single pixels, s40-trinoise), so a noisier camera is not warned. Two
+under 1 % at 16x its variance; 1.5 % and 6 % on single pixels, s40-trinoise), and the misfit allowed grows with the
+noise the capture itself shows (:func:`noise_misfits`, measured between each block's two halves), so a noisier camera
+(or a smaller frame's smaller blocks) is not warned. Two
 LED images of different groups captured in each other's place break that sum, and exchanging the two back in it
 mends it: that names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In
 core beside the capture: the solve wires it (:mod:`nlipscalib.solver.led_checks`), ``nlips capture`` runs it on each
@@ -57,6 +59,10 @@ class TricolorFit(NamedTuple):
     """The worst channel's misfit with ``exchanged``'s groups exchanged (nan when ``exchanged`` is None)."""
     sources: tuple[int, ...] = (0, 1, 2)
     """For each channel, the LED group whose light it holds most of (the design: (0, 1, 2), each its own)."""
+    allowed: float = tolerances.TRICOLOR_MISFIT
+    """The misfit allowed (:func:`allowed_misfit`): a channel's beyond it disagrees, an exchange within it fits."""
+    noise: float = float("nan")
+    """The worst channel's misfit the capture's own noise leaves (:func:`noise_misfits`; nan where not measured)."""
 
 
 def channel_misfits(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -82,11 +88,11 @@ def channel_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) ->
     shares : (3, 3) float64 -- ``shares[c, g]``: the RMS of group g's fitted light in channel c over the channel's
         (a channel lit by its own group: near 1 on its own, near 0 elsewhere).
     """
-    summed = np.stack([images[groups == g].sum(0) for g in range(3)], axis=1)  # (N, 3 groups, 3 channels)
+    summed = group_sums(images, groups)
     misfit, shares = np.full(3, np.inf), np.zeros((3, 3))
     for c in range(3):
         design, seen = summed[:, :, c], tricolor[:, c]
-        gains, *_ = np.linalg.lstsq(design, seen, rcond=None)
+        gains = channel_gains(design, seen)
         power = float(np.mean(seen * seen))
         if power > 0:
             misfit[c] = np.sqrt(np.mean((seen - design @ gains) ** 2) / power)
@@ -94,10 +100,24 @@ def channel_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) ->
     return misfit, shares
 
 
-def tricolor_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -> TricolorFit:
-    """:func:`channel_misfits` of the design's groups and, when a channel misfits beyond
-    :data:`~nlipscalib.core.tolerances.TRICOLOR_MISFIT`, of every pair of LEDs of different groups with their groups
-    exchanged (arguments as there): the pair that fits best, when it fits.
+def group_sums(images: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """(N, 3 groups, 3 channels) float: the (L, N, 3) ``images`` summed by their ``groups`` ((L,) int)."""
+    return np.stack([images[groups == g].sum(0) for g in range(3)], axis=1)
+
+
+def channel_gains(design: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(3,) float: the least-squares gains of the three groups' summed light ``design`` ((N, 3)) in one channel of
+    the frame, ``seen`` ((N,))."""
+    return np.linalg.lstsq(design, seen, rcond=None)[0]
+
+
+def tricolor_fit(
+    tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray, allowed: float = tolerances.TRICOLOR_MISFIT
+) -> TricolorFit:
+    """:func:`channel_misfits` of the design's groups and, when a channel misfits beyond ``allowed``
+    (:func:`allowed_misfit`; by default :data:`~nlipscalib.core.tolerances.TRICOLOR_MISFIT`), of every pair of LEDs of
+    different groups with their groups exchanged (arguments as there): the pair that fits best, when it fits within
+    ``allowed``.
 
     Why every such pair: two images exchanged within a group leave every group's sum as it was (nothing here tells
     them); across groups, the pair's exchange is the one that mends all three channels (48 pairs of 12 LEDs, a few ms
@@ -105,8 +125,8 @@ def tricolor_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -
     groups = np.asarray(groups)
     misfit, shares = channel_fit(tricolor, images, groups)
     sources = tuple(int(g) for g in np.argmax(shares, axis=1))
-    if not np.max(misfit) > tolerances.TRICOLOR_MISFIT:
-        return TricolorFit(misfit, None, float("nan"), sources)
+    if not np.max(misfit) > allowed:
+        return TricolorFit(misfit, None, float("nan"), sources, allowed)
     best, best_misfit = None, np.inf
     for i, j in itertools.combinations(range(len(groups)), 2):
         if groups[i] == groups[j]:
@@ -116,9 +136,9 @@ def tricolor_fit(tricolor: np.ndarray, images: np.ndarray, groups: np.ndarray) -
         worst = float(np.max(channel_misfits(tricolor, images, swapped)))
         if worst < best_misfit:
             best, best_misfit = (i, j), worst
-    if best_misfit > tolerances.TRICOLOR_MISFIT:
-        return TricolorFit(misfit, None, float("nan"), sources)
-    return TricolorFit(misfit, best, best_misfit, sources)
+    if best_misfit > allowed:
+        return TricolorFit(misfit, None, float("nan"), sources, allowed)
+    return TricolorFit(misfit, best, best_misfit, sources, allowed)
 
 
 def tricolor_block(shape: tuple[int, int]) -> int:
@@ -151,23 +171,118 @@ def block_pixels(pixels: np.ndarray, shape: tuple[int, int], side: int) -> np.nd
     return (top[:, None] * side + dy) * width + left[:, None] * side + dx
 
 
+def block_halves(side: int) -> np.ndarray | None:
+    """(side * side,) bool: the first of the two halves of a block of ``side`` px (its pixels row-major) whose
+    difference measures the block's noise (:func:`noise_misfits`): a checkerboard of 2x2 px cells (of single pixels
+    where the side is odd or 2), so that both halves' centre is the block's and a light that varies linearly over it
+    (or as x^2, y^2) is the same in both; None for 1 px blocks. Why cells: a Bayer camera's demosaicing correlates the
+    noise of neighbouring pixels, which the two halves would then share."""
+    if side < 2:
+        return None
+    cell = 2 if side % 2 == 0 and side >= 4 else 1
+    dy, dx = np.divmod(np.arange(side * side), side)
+    return (dy // cell + dx // cell) % 2 == 0
+
+
+class BlockSamples(NamedTuple):
+    """What :func:`block_samples` read: the frames' mean linear light over blocks of the gel, and the difference of
+    each block's two halves (:func:`block_halves`)."""
+
+    tricolor: np.ndarray
+    """(n, 3) float64: the tri-colour frame's mean over each block."""
+    images: np.ndarray
+    """(L, n, 3) float64: each LED image's."""
+    tricolor_halves: np.ndarray | None
+    """(n, 3) float64: the tri-colour frame's first half's mean less its second's (None for 1 px blocks)."""
+    images_halves: np.ndarray | None
+    """(L, n, 3) float64: each LED image's."""
+    weight: float
+    """The variance of a block's mean over that of its halves' difference, for independent pixels: ``a * b / S^2``
+    for halves of ``a`` and ``b`` of the block's ``S`` px (1/4 for equal ones)."""
+
+
 def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The tri-colour frame's and every LED image's mean linear light over the blocks (:func:`tricolor_block`,
     :func:`block_pixels`) that hold the flat pixel indices ``pixels`` ((N,) int, row-major; every k-th block, at most
     :data:`GEL_BLOCK_PIXELS` pixels), less the blocks with a pixel saturated in any of them: ((n, 3), (L, n, 3))
-    float64, or None when fewer than 10 are left."""
-    blocks = block_pixels(pixels, press.camera.shape, tricolor_block(press.camera.shape))  # (B, S)
+    float64, or None when fewer than 10 are left (:func:`block_samples`' first two)."""
+    samples = block_samples(press, pixels)
+    return None if samples is None else (samples.tricolor, samples.images)
+
+
+def block_samples(press: Press, pixels: np.ndarray) -> BlockSamples | None:
+    """:func:`tricolor_samples` with the difference of each block's two halves (:class:`BlockSamples`)."""
+    side = tricolor_block(press.camera.shape)
+    blocks = block_pixels(pixels, press.camera.shape, side)  # (B, S)
     blocks = blocks[:: max(1, blocks.size // GEL_BLOCK_PIXELS)]
+    half = block_halves(side)
+    first = blocks.shape[1] if half is None else int(half.sum())
+    if half is not None:  # each block's first half's pixels first: both halves' means of views, nothing copied
+        blocks = blocks[:, np.argsort(~half, kind="stable")]
     tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B, S, 3)
     stored = _gather(press.led_images, blocks)  # (L, B, S, 3)
     clipped = press.saturated(tri_stored).any(axis=(1, 2)) | press.saturated(stored).any(axis=(0, 2, 3))
     if (~clipped).sum() < 10:
         return None
     black, white = press.response.black_level, press.response.white_level
-    dark = dark.mean(1, dtype=np.float64)  # the stored values' means: linearising is linear, so the light's means
-    tri = linearise(tri_stored.mean(1, dtype=np.float64), dark, black, white).astype(np.float64)
-    images = linearise(stored.mean(2, dtype=np.float64), dark, black, white).astype(np.float64)
-    return tri[~clipped], images[:, ~clipped]
+
+    def halves(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (..., B, S, 3) -> 2 x (..., B, 3): sums
+        return frames[..., :first, :].sum(-2, dtype=np.float64), frames[..., first:, :].sum(-2, dtype=np.float64)
+
+    def light(sums: tuple[np.ndarray, np.ndarray], dark: tuple[np.ndarray, np.ndarray], pick: int | None) -> np.ndarray:
+        # linearising is linear: the light's means are the stored values' means linearised
+        count = (first, blocks.shape[1] - first)
+        if pick is None:
+            frames, darks = sum(sums) / blocks.shape[1], sum(dark) / blocks.shape[1]
+        else:
+            frames, darks = sums[pick] / count[pick], dark[pick] / count[pick]
+        return linearise(frames, darks, black, white).astype(np.float64)[..., ~clipped, :]
+
+    dark_sums, tri_sums, image_sums = halves(dark), halves(tri_stored), halves(stored)
+    tri, images = light(tri_sums, dark_sums, None), light(image_sums, dark_sums, None)
+    if half is None:
+        return BlockSamples(tri, images, None, None, 0.0)
+    share = first / blocks.shape[1]
+    return BlockSamples(
+        tri,
+        images,
+        light(tri_sums, dark_sums, 0) - light(tri_sums, dark_sums, 1),
+        light(image_sums, dark_sums, 0) - light(image_sums, dark_sums, 1),
+        share * (1 - share),
+    )
+
+
+def noise_misfits(samples: BlockSamples, groups: np.ndarray) -> np.ndarray:
+    """(3,) float64: per channel, the misfit (as :func:`channel_fit`'s, RMS over the channel's RMS) that the
+    capture's own noise leaves in the blocks' means, measured: the fit's residual (the design's groups, its gains)
+    differenced between each block's two halves (:func:`block_halves`), whose light is alike and whose noise is
+    not, times :attr:`BlockSamples.weight`'s root. A disagreement of the frame with the images, smooth over a block,
+    is alike in both halves and leaves it. nan where not measured (1 px blocks) or for a channel without light.
+
+    Why measured, not modelled: shot noise varies with the light, a renderer's noise too, and a camera's with its
+    gain; the twin's clean 640x480 presses misfit 0.92-1.07x this at every noise level (s41-tricheck)."""
+    if samples.tricolor_halves is None:
+        return np.full(3, np.nan)
+    summed, halves = group_sums(samples.images, groups), group_sums(samples.images_halves, groups)
+    noise = np.full(3, np.nan)
+    for c in range(3):
+        seen = samples.tricolor[:, c]
+        gains = channel_gains(summed[:, :, c], seen)
+        power = float(np.mean(seen * seen))
+        if power > 0:
+            residual = samples.tricolor_halves[:, c] - halves[:, :, c] @ gains
+            noise[c] = np.sqrt(np.mean(residual * residual) * samples.weight / power)
+    return noise
+
+
+def allowed_misfit(noise: np.ndarray) -> float:
+    """The misfit a capture's tri-colour frame may have and still hold its LED images' light:
+    :data:`~nlipscalib.core.tolerances.TRICOLOR_NOISE_MARGIN` times the worst channel's ``noise`` ((3,) float,
+    :func:`noise_misfits`), at least :data:`~nlipscalib.core.tolerances.TRICOLOR_MISFIT` (that alone where the
+    noise is not measured)."""
+    finite = noise[np.isfinite(noise)]
+    worst = float(finite.max()) if finite.size else 0.0
+    return max(tolerances.TRICOLOR_MISFIT, tolerances.TRICOLOR_NOISE_MARGIN * worst)
 
 
 class TricolorVerdict(NamedTuple):
@@ -249,13 +364,15 @@ def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: C
         return TricolorVerdict("unreadable", f"{error}; the tri-colour frame is not compared with the LED images")
     if not isinstance(frame, np.ndarray) or frame.shape != (*press.camera.shape, 3):  # a Press made in memory
         return TricolorVerdict("not judged", None)
-    samples = tricolor_samples(press, pixels)
+    samples = block_samples(press, pixels)
     if samples is None:
         return TricolorVerdict("not judged", None)
     groups = tricolor_groups(count)
-    if not groups_apart(samples[1], groups):
+    if not groups_apart(samples.images, groups):
         return TricolorVerdict("not judged", None)
-    fit = tricolor_fit(*samples, groups)
+    noise = noise_misfits(samples, groups)
+    fit = tricolor_fit(samples.tricolor, samples.images, groups, allowed_misfit(noise))
+    fit = fit._replace(noise=float(np.nanmax(noise)) if np.isfinite(noise).any() else float("nan"))
     tri = (press.meta.get("images") or {}).get("tricolor", "the tri-colour frame")
     if fit.sources != (0, 1, 2):  # the gains take any colours: a frame lit in others fits as well
         line = (
@@ -264,13 +381,12 @@ def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: C
             "(RGB / BGR); a network trained or run on this press's tri-colour frame would not match its LED images"
         )
         return TricolorVerdict("colours", line, fit)
-    if not np.max(fit.misfit) > tolerances.TRICOLOR_MISFIT:
+    if not np.max(fit.misfit) > fit.allowed:
         return TricolorVerdict("fits", None, fit)
     shares = ", ".join(f"{TRICOLOR_NAMES[c]} {100 * fit.misfit[c]:.1f} %" for c in range(3))
     head = (
         f"{press.folder}: {tri} does not hold the light of the LED images lit in its colours (each channel against "
-        f"its LED groups' images summed: {shares} of the channel misfit; a capture's noise leaves "
-        f"{100 * tolerances.TRICOLOR_MISFIT:.0f} % or less)"
+        f"its LED groups' images summed: {shares} of the channel misfit; {allowed_said(fit)})"
     )
     if fit.exchanged is None:
         line = (
@@ -290,6 +406,17 @@ def tricolor_verdict(press: Press, pixels: np.ndarray, names: list[str], said: C
     return TricolorVerdict("exchanged", line, fit)
 
 
+def allowed_said(fit: TricolorFit) -> str:
+    """ "3 % allowed, this capture's noise leaves 0.4 %" (or "4.5 % allowed: 1.5x the 3.0 % this capture's noise
+    leaves") for ``fit``'s :attr:`~TricolorFit.allowed` and :attr:`~TricolorFit.noise`."""
+    if not np.isfinite(fit.noise):
+        return f"{100 * fit.allowed:.0f} % allowed"
+    if fit.allowed > tolerances.TRICOLOR_MISFIT:
+        margin = tolerances.TRICOLOR_NOISE_MARGIN
+        return f"{100 * fit.allowed:.1f} % allowed: {margin:g}x the {100 * fit.noise:.1f} % this capture's noise leaves"
+    return f"{100 * fit.allowed:.0f} % allowed, this capture's noise leaves {100 * fit.noise:.1f} %"
+
+
 def sources_said(sources: Sequence[int]) -> str:
     """ "its red channel the blue group's, its blue channel the red group's" for a fit's ``sources`` (each
     channel's group), the channels that hold their own group's light left unsaid."""
@@ -302,7 +429,7 @@ def groups_apart(images: np.ndarray, groups: np.ndarray) -> bool:
     """Whether the LED groups' summed images ((L, N, 3) ``images`` by ``groups``, as :func:`channel_fit`'s) tell the
     groups apart in every channel (:data:`~nlipscalib.core.tolerances.TRICOLOR_GROUPS_APART`): where they do not
     (frames lit evenly) any gains fit the frame and its colours cannot be told."""
-    summed = np.stack([images[groups == g].sum(0) for g in range(3)], axis=1)  # (N, 3 groups, 3 channels)
+    summed = group_sums(images, groups)
     for c in range(3):
         norms = np.linalg.norm(summed[:, :, c], axis=0)
         if not np.all(norms > 0):

@@ -414,6 +414,7 @@ def build_dataset(
     run: dict | None = None,
     failed: dict[str, str] | None = None,
     keep_tricolor: bool = False,
+    judged: dict[str, dict] | None = None,
 ) -> Path:
     """Pair every solved press's tri-colour image with its NLiPs normals into a calibration dataset.
 
@@ -433,6 +434,10 @@ def build_dataset(
     keep_tricolor : keep the presses whose tri-colour frame does not hold their LED images' light
         (:mod:`nlipscalib.core.tricolor_check`), each warned of; False: each is left out of the index with one line
         (:func:`.dataset_tricolor.sort_presses`), recorded in index.json's ``tricolor``
+    judged : presses of ``press_folders`` judged before their solve as left out for their tri-colour frame
+        (``nlips calibrate``: :func:`.dataset_tricolor.judged_before_solve`, each said then, and not solved), by
+        name, with their verdict's record: their entries hold only that (nothing read), their lines are not said
+        again
 
     Returns
     -------
@@ -471,11 +476,15 @@ def build_dataset(
         ref_tricolor = press_tricolor_verdict(ref_press).record()
         build = _Build(out, cfg, result_dir, sensor_of(ref_press), ref, failed=failed, keep_tricolor=keep_tricolor)
         write_shard(out / SENSOR_FILE, build.ref)
-        entries = build.entries(folders, progress)
+        judged = judged or {}
+        entries = build.entries([f for f in folders if f.name not in judged], progress)
+        entries = _in_order(folders, entries, judged)
         if failed and not entries:  # every press left out: their lines were logged, this one ends the build
             raise CaptureError(f"{out}: no press could be sampled (each one's error is above)")
         where = folders[0].parent if len({f.parent for f in folders}) == 1 else out
-        entries, left_out = sort_presses(entries, ref_tricolor, Path(reference_folder), where, keep_tricolor)
+        entries, left_out = sort_presses(
+            entries, ref_tricolor, Path(reference_folder), where, keep_tricolor, said=judged
+        )
         if not entries:  # every press disagrees, not all alike: each said above
             raise CaptureError(
                 f"{out}: no press left whose tri-colour frame holds its LED images' light (each one's line is above); "
@@ -506,6 +515,20 @@ def build_dataset(
             tricolor=index_record(ref_tricolor, left_out, keep_tricolor),
         )
     return out
+
+
+def _in_order(folders: list[Path], entries: list[dict], judged: dict[str, dict]) -> list[dict]:
+    """``entries`` with one of each press in ``judged`` (its name, folder and verdict record), in ``folders``'
+    order."""
+    made = {entry["name"]: entry for entry in entries}
+    for folder in folders:
+        if folder.name in judged:
+            made[folder.name] = {
+                "name": folder.name,
+                "folder": str(folder.resolve()),
+                TRICOLOR_KEY: judged[folder.name],
+            }
+    return [made[f.name] for f in folders if f.name in made]
 
 
 def _clean_interrupted(out: Path) -> None:

@@ -13,7 +13,7 @@ it with the shard, and the presses left out in index.json's ``tricolor`` (docs/f
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from ..core.errors import ConfigError
@@ -46,8 +46,36 @@ def reordered(report: dict) -> set[int]:
     return {k for k, led in enumerate(order) if led != k}
 
 
+MENDABLE = ("exchanged",)
+"""The verdicts a press's solve may mend: two LED images of different groups in each other's place, which the
+solve's LED checks may find and solve in the order they show (report.json ``led_order``); the frame then fits
+(``said``). Every other disagreement stands whatever the solve finds (:func:`judged_before_solve`)."""
+
+
+def judged_before_solve(record: object) -> bool:
+    """Whether a press's ``tricolor`` record, judged from its capture alone, leaves it out of the dataset whatever
+    its solve finds (a verdict that disagrees and is not :data:`MENDABLE`): ``nlips calibrate`` then says so and
+    leaves it unsolved."""
+    return disagrees(record) and record.get("verdict") not in MENDABLE
+
+
+def left_out_line(record: dict, solved: bool = True) -> str:
+    """The line for a press left out for its tri-colour frame (``record``: its verdict, with its ``line``);
+    ``solved``: False where it is left out before its solve."""
+    done = "" if solved else " not solved, and"
+    return (
+        f"{record['line']};{done} left out of the dataset, whose network it would teach colours its normals do not "
+        f"have: capture it again, or keep it with {KEEP_OPTION}"
+    )
+
+
 def sort_presses(
-    entries: list[dict], reference: dict, reference_folder: Path, where: Path, keep: bool
+    entries: list[dict],
+    reference: dict,
+    reference_folder: Path,
+    where: Path,
+    keep: bool,
+    said: Collection[str] = (),
 ) -> tuple[list[dict], list[dict]]:
     """The entries the dataset indexes and the presses it leaves out for their tri-colour frame.
 
@@ -57,6 +85,8 @@ def sort_presses(
     reference : the undeformed capture's record, ``reference_folder`` its folder
     where : what the line about a whole session names (the presses' folder)
     keep : keep the presses that disagree (``--keep-tricolor-mismatch``), each warned of
+    said : the names of presses whose line was said before their solve (:func:`judged_before_solve`): left out
+        without saying it again
 
     Returns
     -------
@@ -89,12 +119,8 @@ def sort_presses(
             log.warning("%s; kept in the dataset (%s)", record["line"], KEEP_OPTION)
             kept.append(entry)
         else:
-            log.error(
-                "%s; left out of the dataset, whose network it would teach colours its normals do not have: "
-                "capture it again, or keep it with %s",
-                record["line"],
-                KEEP_OPTION,
-            )
+            if entry["name"] not in said:
+                log.error("%s", left_out_line(record))
             left_out.append({"name": entry["name"], "folder": entry["folder"], RECORD_KEY: record})
     return kept, left_out
 

@@ -1,6 +1,7 @@
 """`nlips calibrate` and a press whose tri-colour frame does not hold its LED images' light (core.tricolor_check):
-left out with one line, kept with --keep-tricolor-mismatch, and a session whose every capture disagrees alike (a
-camera that gives BGR for RGB) refused in one line before any solve (exact-data presses, 64x48)."""
+left out with one line before any solve (unsolved), kept with --keep-tricolor-mismatch, and a session whose every
+capture disagrees alike (a camera that gives BGR for RGB) refused in one line before any solve (exact-data presses,
+64x48)."""
 
 import json
 import logging
@@ -52,6 +53,12 @@ def test_a_press_whose_frame_is_bgr_is_left_out_with_one_line_and_recorded(clean
     (line,) = [x for x in logged.splitlines() if "left out of the dataset, whose network" in x]
     assert f"{root / 'press_0001'}: tricolor.png holds the light of LED groups in other colours" in line
     assert "its red channel the blue group's, its blue channel the red group's" in line and KEEP in line
+    # judged from the capture before the solves: never solved (it was, for nothing: minutes at 640x480)
+    assert "; not solved, and left out of the dataset" in line
+    assert not (root / "press_0001" / "nlips").exists() and (root / "press_0002" / "nlips").is_dir()
+    (said,) = [i for i, r in enumerate(caplog.records) if "left out of the dataset" in r.getMessage()]
+    solved = [i for i, r in enumerate(caplog.records) if "press_0002" in r.getMessage()]
+    assert solved and said < min(solved)
     assert f"1 press left out of the dataset (tri-colour frame unlike its LED images; {KEEP}): press_0001" in err
     data = CalibrationDataset(root / "calibration")
     assert data.names == ["press_0002", "press_0003"] and data.tricolor_kept == []
@@ -69,6 +76,18 @@ def test_a_press_whose_frame_is_bgr_is_left_out_with_one_line_and_recorded(clean
     assert _calibrate(root) == 1
     assert "samples of 2 of 2 presses kept" in caplog.text
     assert len([x for x in caplog.text.splitlines() if "left out of the dataset, whose network" in x]) == 1
+
+
+def test_every_press_left_out_before_the_solves_is_one_refusal_after_their_lines(clean, tmp_path, capsys, caplog):
+    """The undeformed capture fits, every press's frame is BGR: each press's line, then one refusal, no solve (the
+    three were solved, then the build found none to sample)."""
+    root = _with_bgr(clean, tmp_path, ["press_0001", "press_0002", "press_0003"])
+    assert _calibrate(root) == 2
+    err = capsys.readouterr().err
+    assert len([x for x in caplog.text.splitlines() if "not solved, and left out of the dataset" in x]) == 3
+    assert f"nlips calibrate: error: {root}: no press left whose tri-colour frame holds its LED images' light" in err
+    assert KEEP in err and "Traceback" not in err
+    assert not any((root / f"press_{i:04d}" / "nlips").exists() for i in (1, 2, 3))
 
 
 def test_the_keep_option_keeps_the_press_with_a_warning_and_train_names_it(clean, tmp_path, capsys, caplog):

@@ -7,7 +7,15 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.core.errors import ConfigError
-from nlipscalib.learn.dataset_tricolor import KEEP_OPTION, disagrees, reordered, session_line, sort_presses
+from nlipscalib.learn.dataset_tricolor import (
+    KEEP_OPTION,
+    disagrees,
+    judged_before_solve,
+    left_out_line,
+    reordered,
+    session_line,
+    sort_presses,
+)
 
 FITS = {"verdict": "fits", "misfit": [0.015, 0.015, 0.015], "sources": [0, 1, 2], "exchanged": None}
 BGR = {"verdict": "colours", "misfit": [0.01] * 3, "sources": [2, 1, 0], "exchanged": None, "line": "P: BGR"}
@@ -73,3 +81,21 @@ def test_the_leds_a_solve_used_in_another_place_are_those_its_report_moved():
     assert not disagrees(said)
     with pytest.raises(ConfigError, match="undeformed reference frame"):  # judged: not a session of one way
         sort_presses(_entries(said, said), BGR, Path("/p/reference"), Path("/p"), keep=False)
+
+
+def test_only_an_exchange_waits_for_the_solve_and_a_press_said_before_it_is_not_said_again(caplog):
+    """`nlips calibrate` leaves a press out before its solve when its verdict stands whatever the solve finds (other
+    colours, no exchange that mends it); an exchanged pair may be mended by the solve (its LED checks solve the two
+    images in the order they show: "said"), so it is solved and judged after. The build then leaves the press
+    judged before out without its line a second time."""
+    misfit = {"verdict": "misfit", "misfit": [0.05] * 3, "sources": [0, 1, 2], "exchanged": None, "line": "P: other"}
+    assert judged_before_solve(BGR) and judged_before_solve(misfit)
+    assert not judged_before_solve(SWAP45) and not judged_before_solve(FITS) and not judged_before_solve(UNJUDGED)
+    assert not judged_before_solve(FITS | {"verdict": "said", "exchanged": [3, 4]}) and not judged_before_solve(None)
+    assert left_out_line(BGR, solved=False).startswith("P: BGR; not solved, and left out of the dataset")
+    assert left_out_line(BGR).startswith("P: BGR; left out of the dataset") and KEEP_OPTION in left_out_line(BGR)
+    entries = _entries(BGR, FITS, misfit)
+    kept, left = sort_presses(entries, FITS, Path("/p/reference"), Path("/p"), keep=False, said={"press_0001"})
+    assert [e["name"] for e in kept] == ["press_0002"] and [g["name"] for g in left] == ["press_0001", "press_0003"]
+    (record,) = [r for r in caplog.records if r.levelno == logging.ERROR]
+    assert record.getMessage().startswith("P: other; left out of the dataset")
