@@ -25,14 +25,41 @@ def beside_export(model_path: str | Path, full_frame: bool = False) -> Path:
     return frame_graph_path(model_path) if full_frame else Path(model_path).with_suffix(".onnx")
 
 
-def of_another_model(export: str | Path, digest: str) -> bool:
-    """Whether the ONNX file ``export`` records another model's digest than ``digest`` (the model file's,
-    ``onnx_export.bytes_digest``): left from before the model was trained again. False when it records none or
-    cannot be read (its check says why when it runs)."""
+def why_stale(export: str | Path, digest: str, full_frame: bool = False) -> str | None:
+    """Why ``--backend auto`` skips the ONNX file ``export`` beside a model whose digest is ``digest`` (the model
+    file's, ``onnx_export.bytes_digest``), in words, or None when it runs it (its check then says if it cannot).
+
+    Two reasons, both from its metadata alone (:func:`.onnx_export.recorded_metadata`): it records another model's
+    digest (left from before the model was trained again), or, a per-pixel export (not ``full_frame``), it is a ratio
+    model's export of before 2026-12-07, whose graph took the ratios (:func:`.onnx_export.ratio_export_of_before`):
+    run, it would be refused, and PyTorch runs the same network. A file that records no digest or cannot be read is
+    left to its check (None)."""
+    from .onnx_export import RATIO_BEFORE, ratio_export_of_before, recorded_metadata
+
+    metadata = recorded_metadata(export)
+    recorded = metadata.get("model_digest")
+    if recorded is None:
+        return None
+    if recorded != digest:
+        return "exported from another model than {model} (left from before it was trained again?)"
+    if not full_frame and ratio_export_of_before(metadata):
+        return RATIO_BEFORE
+    return None
+
+
+def not_current(export: str | Path, digest: str, full_frame: bool = False) -> str | None:
+    """Why the ONNX file ``export`` beside a model whose digest is ``digest`` is not that model's current export, in
+    words (``{model}`` standing for the model's path), or None when it is (or is not there).
+
+    As :func:`why_stale`, and a file that records no digest too (cut short, or not written by nlipscalib): what
+    ``nlips train`` makes again when it reuses the model (``cli.train``), from a few hundred bytes of the file."""
     from .onnx_export import recorded_digest
 
-    recorded = recorded_digest(export)
-    return recorded is not None and recorded != digest
+    if not Path(export).is_file():
+        return None
+    if recorded_digest(export) is None:
+        return "records no model digest (cut short, or not written by `nlips export`)"
+    return why_stale(export, digest, full_frame)
 
 
 def remake_command(model_path: str | Path, full_frame: bool = False) -> str:
@@ -40,10 +67,10 @@ def remake_command(model_path: str | Path, full_frame: bool = False) -> str:
     return f"nlips export {shell_word(model_path)}{' --full-frame' if full_frame else ''}"
 
 
-def skipped_warning(model_path: str | Path, full_frame: bool = False) -> str:
-    """The line auto says when it skips the export beside ``model_path`` for being another model's."""
+def skipped_warning(model_path: str | Path, why: str, full_frame: bool = False) -> str:
+    """The line auto says when it skips the export beside ``model_path`` (``why``: :func:`why_stale`'s words)."""
     export = beside_export(model_path, full_frame)
     return (
-        f"{export}: exported from another model than {model_path} (left from before it was trained again?): skipped, "
-        f"PyTorch runs the network; `{remake_command(model_path, full_frame)}` writes it again"
+        f"{export}: {why.format(model=model_path)}: skipped, PyTorch runs the network; "
+        f"`{remake_command(model_path, full_frame)}` writes it again"
     )

@@ -81,11 +81,17 @@ def recorded_digest(path: str | Path) -> str | None:
     messages and parsing a ratio model's 4 MB export cost 22-26 ms of CPU (a ``nlips infer`` re-run that keeps every
     result, which reads the digest to choose its runtime before anything loads, takes 0.30 s; the walk 0.02 ms:
     benchmarks/RESULTS.md, s40-companions)."""
+    return recorded_metadata(path).get("model_digest")
+
+
+def recorded_metadata(path: str | Path) -> dict[str, str]:
+    """The metadata entries of the ONNX file at ``path`` (as :func:`recorded_digest` reads them: the top-level fields
+    walked, the graph skipped), empty when it cannot be read so."""
     try:
         with open(path, "rb") as f:
-            return _top_level_metadata(f).get("model_digest")
+            return _top_level_metadata(f)
     except (OSError, ValueError):  # unreadable, or not protobuf's wire format
-        return None
+        return {}
 
 
 MAX_TOP_LEVEL_FIELDS = 1000
@@ -456,6 +462,21 @@ def _contract(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     return f"its graph maps {got}, NLiPsNet maps {_describe(want.input[0])} -> {_describe(want.output[0])}"
 
 
+RATIO_BEFORE = (
+    "exported before 2026-12-07, when a ratio model's ONNX file took the colours over the reference as its input "
+    "(now its graph divides them itself and takes the linear colours, as every model's does)"
+)
+"""What a ratio model's export of before is named by, when it is refused (:func:`check_export`) or skipped
+(``learn.exports``)."""
+
+
+def ratio_export_of_before(metadata: dict[str, str]) -> bool:
+    """Whether an export's metadata entries (:func:`recorded_metadata`) are those of a ratio model's export of before
+    2026-12-07 (:func:`_ratio_outside`): ``colour_input`` "ratio" and no ``input`` entry, which every export since
+    records (:func:`input_contract`). Per-pixel exports only: the full-frame graph records no ``input``."""
+    return metadata.get("colour_input") == "ratio" and "input" not in metadata
+
+
 def _ratio_outside(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     """A ratio model's export from before its graph divided the colours (up to 2026-12-07): it took the ratios as its
     input, where the export takes the linear colours. Run as it is with this release's inputs, its normals would be
@@ -465,10 +486,7 @@ def _ratio_outside(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | N
         return None
     if {p.key: p.value for p in proto.metadata_props}.get("colour_input") != "ratio":
         return None
-    return (
-        "exported before 2026-12-07, when a ratio model's ONNX file took the colours over the reference as its input "
-        "(now its graph divides them itself and takes the linear colours, as every model's does)"
-    )
+    return RATIO_BEFORE
 
 
 def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
