@@ -254,8 +254,11 @@ def run(args: argparse.Namespace) -> int:
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
                 f"{_device_note(result.history, device.type)}other options or --out train another"
             )
-            _companions_made_current(out, args.no_onnx)
-            if older := _older_model(out):
+            from ..learn.model import load_model
+
+            reused = load_model(out)  # once, for both: its digest and its record
+            _companions_made_current(out, args.no_onnx, reused.digest)
+            if older := _older_model(out, reused.info):
                 log.warning("%s", older)
             return 0
         training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}", result.val_presses)
@@ -319,7 +322,7 @@ def _frame_graph_again(stage: Path, out: Path) -> tuple[float | None, str | None
         return None, why.replace(str(staged), str(out))
 
 
-def _companions_made_current(out: Path, no_onnx: bool) -> None:
+def _companions_made_current(out: Path, no_onnx: bool, digest: str) -> None:
     """After the model at ``out`` was reused: each ONNX file beside it that is not its current export (MODEL.onnx,
     MODEL.frame.onnx recording another model's digest or none, a ratio model's export of before 2026-12-07:
     ``learn.exports.not_current``) made again as a training makes it, or removed (``--no-onnx``, or it cannot be
@@ -328,10 +331,10 @@ def _companions_made_current(out: Path, no_onnx: bool) -> None:
     Why: a reuse published nothing, so a full-frame graph left stale by an earlier nlipscalib's retrain (which did
     not make it again) stayed beside the model, and `--backend auto` skipped it on every run; with ``--no-onnx`` a
     stale MODEL.onnx stayed alike (without it, a stale MODEL.onnx makes the run publish its files again:
-    ``learn.publish.unusable_model_files``). Cheap when both are current: the model file's digest (a SHA-256 of its
-    bytes) and a few hundred bytes of each export (``onnx_export.recorded_metadata``), nothing loaded."""
+    ``learn.publish.unusable_model_files``). Cheap when both are current: ``digest`` (the model file's,
+    ``LoadedModel.digest``, of the model the reuse loads anyway) against a few hundred bytes of each export
+    (``onnx_export.recorded_metadata``)."""
     from ..learn.exports import not_current
-    from ..learn.onnx_export import file_digest
     from ..learn.onnx_fullframe import frame_graph_path
     from ..learn.publish import model_files_held
     from ..progress import say
@@ -342,7 +345,6 @@ def _companions_made_current(out: Path, no_onnx: bool) -> None:
     if not any(path.is_file() for path in exports):
         return
     with model_files_held(out):  # as `nlips export` beside the model: never in the middle of another's write
-        digest = file_digest(out)
         for path, full in exports.items():
             why = not_current(path, digest, full)
             if why is None:
@@ -399,17 +401,17 @@ def _more_changed(changed: dict[str, str]) -> str:
     return f" ({len(others)} other{'s' if len(others) > 1 else ''} changed too: {shown}){anyway}"
 
 
-def _older_model(out: Path) -> str | None:
+def _older_model(out: Path, info: dict) -> str | None:
     """Why the reused model at ``out`` lacks what a training of this version records, in one line, or None.
 
     Why: a training of the same options on the same samples reuses the model whatever nlipscalib trained it (its
     weights are what training again would give); one trained before 2026-12-06 records no calibrated contacts
     (``learn.resolution.INFO_KEY``), so `nlips infer` could not judge a contact against the steepest calibration
-    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word."""
-    from ..learn.model import load_model
+    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word. ``info``: the reused
+    model's (``LoadedModel.info``)."""
     from ..learn.resolution import INFO_KEY
 
-    if INFO_KEY in load_model(out).info:
+    if INFO_KEY in info:
         return None
     return (
         f"{out}: trained by an nlipscalib before 2026-12-06: it records no calibrated contacts, so `nlips infer` "
