@@ -1,12 +1,15 @@
 """The ONNX files beside a model file, which ``nlips infer`` and ``nlips live`` run by default (``--backend auto``):
 MODEL.onnx (``nlips train``, ``nlips export MODEL``) and MODEL.frame.onnx (``nlips export MODEL --full-frame``), and
-whether each is the model's own (its metadata's ``model_digest``) or left from before the model was trained again.
+whether each is the model's own (its metadata's ``model_digest``) or left from before the model was trained again, or
+a ratio model's MODEL.onnx of before 2026-12-07 (:func:`why_stale`); and what ``nlips train`` makes current beside a
+model it reuses (:func:`not_current`). An export written elsewhere (``nlips export MODEL --out F``) is not looked for:
+``--onnx F`` names it (``learn.infer.onnx_backend``), and it is checked, never skipped.
 
 Why auto skips one of another model where ``--backend onnx`` refuses it: auto means the best runtime available, and a
 graph of the model it replaced is not available for this model; PyTorch runs the same network (the normals within
 ``ONNX_PARITY_DEG``), so the run goes on with one warning naming the file and the command that makes it again. Asked
-for by name, the runtime the user chose cannot run: refused, as before. Only the recorded digest is compared here (a
-file read, no model loaded); a file that records this model's digest is checked whole before it runs
+for by name, the runtime the user chose cannot run: refused, as before. Only the recorded metadata is read here (a
+few hundred bytes, no model loaded); a file that records this model's digest is checked whole before it runs
 (``onnx_export.check_export``, ``onnx_fullframe.check_full_frame``), and a damaged or foreign one is refused then.
 """
 

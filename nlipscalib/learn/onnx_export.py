@@ -52,9 +52,13 @@ SIZE_SLACK = 1 << 20
 record): a larger file is refused before it is read."""
 
 
-def export_hint(model_path: str | Path, again: bool = False) -> str:
+def export_hint(model_path: str | Path, again: bool = False, export: str | Path | None = None) -> str:
     """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale
-    (``again``: damaged, so it is written again)."""
+    (``again``: damaged, so it is written again). ``export``: the file that was to run, when it is not MODEL.onnx
+    beside the model (named: ``--onnx F``), which ``nlips export MODEL --out F`` writes."""
+    if export is not None and Path(export) != Path(model_path).with_suffix(".onnx"):
+        command = f"`nlips export {shell_word(model_path)} --out {shell_word(export)}`"
+        return f"{command} writes it{' again' if again else ''}, or leave out --onnx"
     if again:
         return f"`nlips export {shell_word(model_path)}` writes it again, or use --backend torch"
     export = f"`nlips export {shell_word(model_path)}`"
@@ -394,7 +398,7 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
     """
     path = Path(path)
     expected = export_proto(model)
-    again = export_hint(model.path, again=True)
+    again = export_hint(model.path, again=True, export=path)
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -411,7 +415,8 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
         raise CaptureError(f"{path}: not a readable ONNX model (no graph): {again}")
     if {p.key: p.value for p in proto.metadata_props}.get("model_digest") != model.digest:
         raise CaptureError(
-            f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
+            f"{path}: exported from another model than {model.path}; export it again "
+            f"({export_hint(model.path, export=path)})"
         )
     old = _ratio_outside(proto, expected)
     if old:  # the model's own export, of an earlier release: named as such, not as a graph of another model
@@ -619,7 +624,8 @@ class OnnxNet:
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
         path = Path(path)
         if not path.is_file():
-            raise CaptureError(f"{path}: ONNX model is missing ({export_hint(model.path if model else 'MODEL.pt')})")
+            hint = export_hint(model.path if model else "MODEL.pt", export=path)
+            raise CaptureError(f"{path}: ONNX model is missing ({hint})")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
@@ -632,7 +638,7 @@ class OnnxNet:
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise CaptureError(
                 f"{path}: not a readable ONNX model ({type(exc).__name__}): "
-                f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
+                f"{export_hint(model.path if model else 'MODEL.pt', again=True, export=path)}"
             ) from None
         if int8:  # the checked float file, quantised in memory
             float_model = data if isinstance(data, bytes) else path.read_bytes()

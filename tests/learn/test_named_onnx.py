@@ -80,6 +80,7 @@ def test_a_per_pixel_export_elsewhere_runs_with_onnx_and_another_models_is_refus
     assert main([*named[:-2], str(tmp_path / "stale"), "--no-progress"]) == 2
     error = _one_error(capsys)
     assert error.startswith(f"nlips infer: error: {deployed}: exported from another model than {model}"), error
+    assert f"`nlips export {model} --out {deployed}` writes it" in error, error  # the file named, not MODEL.onnx
     assert not (tmp_path / "stale").exists()
 
 
