@@ -71,17 +71,24 @@ def kept_reruns(before: Path, dataset: Path, model: Path, out: Path, train_args:
     trees = {"before": before.resolve(), "after": ROOT}
     for side in trees:
         (out / side).mkdir(parents=True, exist_ok=True)
-        for path in companion_files(model):
-            shutil.copy2(path, out / side / path.name)
+        if not (out / side / model.name).is_file():  # kept between runs: a side's own training is reused
+            for path in companion_files(model):
+                shutil.copy2(path, out / side / path.name)
 
     def args(side: str) -> list[str]:
         return ["train", str(dataset), "--out", str(out / side / model.name), *train_args]
 
-    for side, tree in trees.items():  # each side reuses the model (else the times are a training's)
+    # each side must reuse its model (else the times are a training's): a checkout whose training code (core/, learn/:
+    # learn.checkpoint.training_code) differs from the model's trains it again once, then reuses its own
+    for side, tree in trees.items():
         said: list[str] = []
-        nlips_process(tree, args(side), f"reused-{side}", said)
-        if ": reused, trained before" not in said[0]:
-            raise SystemExit(f"{side}: the re-run did not reuse the model:\n{said[0]}")
+        for _ in range(2):
+            nlips_process(tree, args(side), f"reused-{side}", said)
+            if ": reused, trained before" in said[-1]:
+                break
+        else:
+            raise SystemExit(f"{side}: the re-run did not reuse the model:\n{said[-1]}")
+        print(f"\n{side}: {'trained once, then ' if len(said) > 1 else ''}reused")
 
     def run(side: str) -> tuple[float, float, int]:
         return nlips_process(trees[side], args(side), f"reused-{side}")
