@@ -30,7 +30,9 @@ def beside_export(model_path: str | Path, full_frame: bool = False) -> Path:
 
 def why_stale(export: str | Path, digest: str, full_frame: bool = False) -> str | None:
     """Why ``--backend auto`` skips the ONNX file ``export`` beside a model whose digest is ``digest`` (the model
-    file's, ``onnx_export.bytes_digest``), in words, or None when it runs it (its check then says if it cannot).
+    file's, ``onnx_export.bytes_digest``), in words (``{model}`` standing for the model's path, for ``str.format``:
+    the same words name it in `nlips infer`'s warning and `nlips train`'s), or None when it runs it (its check then
+    says if it cannot).
 
     Two reasons, both from its metadata alone (:func:`.onnx_export.recorded_metadata`): it records another model's
     digest (left from before the model was trained again), or, a per-pixel export (not ``full_frame``), it is a ratio
