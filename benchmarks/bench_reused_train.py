@@ -65,10 +65,14 @@ def in_process(model: Path, repeats: int) -> None:
         print(f"| {name} | {spread(times, 3)} |")
 
 
-def kept_reruns(before: Path, dataset: Path, model: Path, out: Path, train_args: list[str], pairs: int) -> None:
+def kept_reruns(
+    before: Path, dataset: Path, model: Path, out: Path, train_args: list[str], pairs: int, after_first: bool = False
+) -> None:
     from common import interleaved, nlips_process, timing_rows
 
     trees = {"before": before.resolve(), "after": ROOT}
+    if after_first:  # each round's order swapped: a bias of the second run of a pair falls on the other side
+        trees = dict(reversed(trees.items()))
     for side in trees:
         (out / side).mkdir(parents=True, exist_ok=True)
         if not (out / side / model.name).is_file():  # kept between runs: a side's own training is reused
@@ -138,15 +142,19 @@ def main() -> None:
     p.add_argument("--train-args", default="--no-progress", help="the options the model was trained with")
     p.add_argument("--pairs", type=int, default=10, help="interleaved rounds of kept re-runs (default 10)")
     p.add_argument("--repeats", type=int, default=30, help="in-process calls (default 30)")
+    p.add_argument("--after-first", action="store_true", help="run this checkout first in each round")
+    p.add_argument("--reruns-only", action="store_true", help="the interleaved re-runs alone (no stale case)")
     args = p.parse_args()
     missing = [path for path in companion_files(args.model) if not path.is_file()]
     if missing:
         sys.exit(f"{missing[0]}: missing (train the model, then `nlips export MODEL --full-frame`)")
     train_args = shlex.split(args.train_args)
     print(f"load average at the start: {os.getloadavg()}")
-    in_process(args.model, args.repeats)
-    kept_reruns(args.before, args.dataset, args.model, args.out, train_args, args.pairs)
-    stale_frame_graph(args.dataset, args.model, args.out, train_args)
+    if not args.reruns_only:
+        in_process(args.model, args.repeats)
+    kept_reruns(args.before, args.dataset, args.model, args.out, train_args, args.pairs, args.after_first)
+    if not args.reruns_only:
+        stale_frame_graph(args.dataset, args.model, args.out, train_args)
     print(f"\nload average at the end: {os.getloadavg()}")
 
 
