@@ -423,7 +423,7 @@ def _design_leds(name: str) -> int:
 
 
 def add_device_arguments(p: argparse.ArgumentParser) -> None:
-    """``--device`` and ``--full-frame``, shared with ``nlips infer``."""
+    """``--device``, ``--full-frame`` and ``--onnx``, shared by ``nlips infer`` and ``nlips live``."""
     p.add_argument(
         "--device",
         default="cpu",
@@ -439,6 +439,13 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
         "MODEL.frame.onnx, `nlips export MODEL --full-frame`, when it is beside the model or with --backend onnx; "
         "not for a lookup table, which runs on the changed pixels)",
     )
+    p.add_argument(
+        "--onnx",
+        metavar="FILE",
+        help="the ONNX file to run, written elsewhere by `nlips export MODEL --out FILE` (default: MODEL.onnx beside "
+        "the model, which --backend auto looks for; MODEL.frame.onnx with --full-frame); checked to be the model's "
+        "before it runs, refused in one line if not",
+    )
 
 
 def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predictor:
@@ -448,19 +455,21 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
     from ..core.errors import ConfigError
 
     try:
-        from ..learn.infer import Predictor, predictor_device
+        from ..learn.infer import Predictor, onnx_backend, predictor_device
     except ModuleNotFoundError:
         raise ConfigError(
             "--model needs nlipscalib.learn.infer (NLiPsNet and lookup tables), which this installation lacks"
         ) from None
-    predictor_device(args.device, args.backend, args.full_frame, flag=True)  # worded with the flags, not keywords
+    backend = onnx_backend(args.backend, args.onnx, args.device, args.full_frame, flag=True)
+    predictor_device(args.device, backend, args.full_frame, flag=True)  # worded with the flags, not keywords
     predictor = Predictor(
         args.model,
-        backend=args.backend,
+        backend=backend,
         threads=args.threads,
         depth=depth,
         device=args.device,
         full_frame=args.full_frame,
+        onnx=args.onnx,
     )
     if getattr(args, "reference", None):  # `nlips infer --reference FRAME`: an aged sensor, refreshed
         reference = refreshed_reference(predictor, args.reference)

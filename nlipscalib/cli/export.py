@@ -81,12 +81,7 @@ def run(args: argparse.Namespace) -> int:
         # none
         path = export_onnx(model, out, check=lambda tmp: angles.append(parity_deg(model, tmp)))
     angle = angles[0]
-    default = Path(model.path).with_suffix(".onnx")
-    used = (
-        "`nlips infer` and `nlips live` use it by default"
-        if beside
-        else f"a copy: `nlips infer` and `nlips live` use {default} by default"
-    )
+    used = "`nlips infer` and `nlips live` use it by default" if beside else _elsewhere(model.path, path)
     print_result(path)  # stdout: the ONNX file alone (scripts); its check on stderr
     say(f"{path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg; {used}")
     return 0
@@ -109,13 +104,27 @@ def _full_frame(model_path: str, out: Path) -> int:
     with model_files_held(model_path) if beside else nullcontext():
         path, angle = export_full_frame(load_model(model_path), out)  # a model it cannot hold: one line, no file
     print_result(path)
+    where = "" if beside else f"; {_elsewhere(model_path, path, full_frame=True)}"
     say(
         f"{path}: onnxruntime's normal map vs PyTorch's full-frame path: max angular difference {angle:.4f} deg on the "
         "gel (the reference frame, 10 % darker and brighter, and with a synthetic contact); input 'tricolor' "
         "(H, W, 3) uint16 as the camera stores it, outputs 'normals' (NaN off the gel) and 'gel' (docs/formats.md in "
-        "the nlipscalib source distribution or repository)"
+        f"the nlipscalib source distribution or repository){where}"
     )
     return 0
+
+
+def _elsewhere(model_path: str | Path, path: Path, full_frame: bool = False) -> str:
+    """What the export's line says of an ONNX file written elsewhere than beside its model: how `nlips infer` and
+    `nlips live` run it (``--onnx``), since ``--backend auto`` looks only beside the model."""
+    from ..core.shell_words import shell_word
+    from ..learn.exports import beside_export
+
+    full = " --full-frame" if full_frame else ""
+    return (
+        f"elsewhere: `nlips infer {shell_word(model_path)} ...{full} --onnx {shell_word(path)}` runs it (as `nlips "
+        f"live` does), --backend auto looks only for {beside_export(model_path, full_frame)}"
+    )
 
 
 def parity_deg(model: LoadedModel, onnx_path: Path) -> float:

@@ -777,13 +777,14 @@ def _settings_before_loading(args: argparse.Namespace) -> dict | None:
     device), or when the model is no file (its load names the problem)."""
     from pathlib import Path
 
-    from ..learn.infer import resolved_backend
+    from ..learn.infer import onnx_backend, resolved_backend
     from ..learn.onnx_export import file_digest
 
     if args.device != "cpu" or args.full_frame or not Path(args.model).is_file():
         return None
     digest = file_digest(args.model)
-    return _settings(args, digest, resolved_backend(args.model, args.backend, digest=digest), "cpu", False)
+    backend = onnx_backend(args.backend, args.onnx, flag=True)
+    return _settings(args, digest, resolved_backend(args.model, backend, digest=digest, onnx=args.onnx), "cpu", False)
 
 
 def _look_before_loading(

@@ -269,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
             f"--camera-response is for --predictor: the model {args.model} records its calibration's camera "
             "response; drop --camera-response"
         )
+    if args.predictor and args.onnx:
+        raise ConfigError(f"--onnx is for --model (its network's ONNX file); {args.predictor} runs itself: drop it")
     if not args.watch:  # beside a watched folder, --port nlipsemu://ID is the board alone (as with --camera)
         emulate_behind_port(args)
     check_watch_arguments(args)  # --watch beside another source, its folder missing: before the model loads

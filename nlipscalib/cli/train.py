@@ -46,8 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Train the paper's NLiPsNet (MLP 256-256-128, BatchNorm, ReLU, dropout 0.2, cosine loss) with "
         "a split by press and early stopping on validation AAE; writes MODEL.pt, MODEL.onnx, MODEL_curve.png and "
         "a resumable MODEL.checkpoint.pt, published together when it ends. The same training run again (same options "
-        "and samples) reuses its finished model; started while it trains, it waits for it first. Another training "
-        "into an --out that one trains into is refused until that one ends (then it replaces the model, saying so).",
+        "and samples) reuses its finished model and makes the ONNX files beside it its own (one left from another "
+        "model, or cut short, is made again, or removed with --no-onnx); started while it trains, it waits for it "
+        "first. Another training into an --out that one trains into is refused until that one ends (then it replaces "
+        "the model, saying so).",
     )
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="model file to write (.pt)")
@@ -252,7 +254,11 @@ def run(args: argparse.Namespace) -> int:
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
                 f"{_device_note(result.history, device.type)}other options or --out train another"
             )
-            if older := _older_model(out):
+            from ..learn.model import load_model
+
+            reused = load_model(out)  # once, for both: its digest and its record
+            _companions_made_current(out, args.no_onnx, reused.digest)
+            if older := _older_model(out, reused.info):
                 log.warning("%s", older)
             return 0
         training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}", result.val_presses)
@@ -316,10 +322,51 @@ def _frame_graph_again(stage: Path, out: Path) -> tuple[float | None, str | None
         return None, why.replace(str(staged), str(out))
 
 
-def _say_removed(removed: Sequence[Path], out: Path, why: dict[Path, str]) -> None:
+def _companions_made_current(out: Path, no_onnx: bool, digest: str) -> None:
+    """After the model at ``out`` was reused: each ONNX file beside it that is not its current export (MODEL.onnx,
+    MODEL.frame.onnx recording another model's digest or none, a ratio model's export of before 2026-12-07:
+    ``learn.exports.not_current``) made again as a training makes it, or removed (``--no-onnx``, or it cannot be
+    made), each said in the lines a training that replaces a model says.
+
+    Why: a reuse published nothing, so a full-frame graph left stale by an earlier nlipscalib's retrain (which did
+    not make it again) stayed beside the model, and `--backend auto` skipped it on every run; with ``--no-onnx`` a
+    stale MODEL.onnx stayed alike (without it, a stale MODEL.onnx makes the run publish its files again:
+    ``learn.publish.unusable_model_files``). Cheap when both are current: ``digest`` (the model file's,
+    ``LoadedModel.digest``, of the model the reuse loads anyway) against a few hundred bytes of each export
+    (``onnx_export.recorded_metadata``)."""
+    from ..learn.exports import not_current
+    from ..learn.onnx_fullframe import frame_graph_path
+    from ..learn.publish import model_files_held
+    from ..progress import say
+
+    exports = {frame_graph_path(out): True}  # MODEL.onnx was checked whole before the reuse, unless --no-onnx
+    if no_onnx:
+        exports[out.with_suffix(".onnx")] = False
+    if not any(path.is_file() for path in exports):
+        return
+    with model_files_held(out):  # as `nlips export` beside the model: never in the middle of another's write
+        for path, full in exports.items():
+            why = not_current(path, digest, full)
+            if why is None:
+                continue
+            why, reason = why.format(model=out), "--no-onnx"
+            if not no_onnx:  # the full-frame graph, made as a training that replaces the model makes it
+                angle, reason = _frame_graph_again(out.parent, out)
+                if reason is None:
+                    say(
+                        f"{path}: made again ({why}): onnxruntime's normal map vs PyTorch's full-frame path max "
+                        f"angular difference {angle:.4f} deg"
+                    )
+                    continue
+            path.unlink(missing_ok=True)
+            _say_removed([path], out, {path: reason}, why)
+
+
+def _say_removed(removed: Sequence[Path], out: Path, why: dict[Path, str], stale: str | None = None) -> None:
     """One warning for each export of the model this run replaced (MODEL.onnx, MODEL.frame.onnx: the keys of
     ``why``, the reason it was not made again) that its publish removed, with the command that writes the new
-    model's."""
+    model's; with ``stale`` (what was wrong with it), of an export beside a reused model that was not its current
+    one (:func:`_companions_made_current`)."""
     from ..learn.exports import remake_command
     from ..learn.onnx_fullframe import frame_graph_path
 
@@ -328,12 +375,15 @@ def _say_removed(removed: Sequence[Path], out: Path, why: dict[Path, str]) -> No
             continue
         full = path == frame_graph_path(out)
         what = "full-frame ONNX graph" if full else "ONNX export"
+        whose = "of the model this training replaced" if stale is None else f"beside the reused model, {stale}"
         log.warning(
-            "%s: the %s of the model this training replaced, removed (not made again: %s); `%s` writes the new model's",
+            "%s: the %s %s, removed (not made again: %s); `%s` writes the %s",
             path,
             what,
+            whose,
             why[path],
             remake_command(out, full),
+            "new model's" if stale is None else "model's",
         )
 
 
@@ -351,17 +401,17 @@ def _more_changed(changed: dict[str, str]) -> str:
     return f" ({len(others)} other{'s' if len(others) > 1 else ''} changed too: {shown}){anyway}"
 
 
-def _older_model(out: Path) -> str | None:
+def _older_model(out: Path, info: dict) -> str | None:
     """Why the reused model at ``out`` lacks what a training of this version records, in one line, or None.
 
     Why: a training of the same options on the same samples reuses the model whatever nlipscalib trained it (its
     weights are what training again would give); one trained before 2026-12-06 records no calibrated contacts
     (``learn.resolution.INFO_KEY``), so `nlips infer` could not judge a contact against the steepest calibration
-    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word."""
-    from ..learn.model import load_model
+    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word. ``info``: the reused
+    model's (``LoadedModel.info``)."""
     from ..learn.resolution import INFO_KEY
 
-    if INFO_KEY in load_model(out).info:
+    if INFO_KEY in info:
         return None
     return (
         f"{out}: trained by an nlipscalib before 2026-12-06: it records no calibrated contacts, so `nlips infer` "

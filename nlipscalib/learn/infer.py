@@ -103,7 +103,7 @@ class Predictor:
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
         ``nlips train``; with ``full_frame`` on the CPU, "onnx" (and "auto" when it is there) the full-frame graph
         MODEL.frame.onnx, ``nlips export MODEL --full-frame``, for the normals; "auto" skips an export of another
-        model with one warning, :func:`resolved_backend`)
+        model, or a ratio model's export of before 2026-12-07, with one warning, :func:`resolved_backend`)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
         torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
@@ -113,6 +113,9 @@ class Predictor:
         the reference's otherwise), on ``device`` by :mod:`.fullframe`
     reference : (H, W, 3) float32, linear -- an undeformed frame of the sensor taken now (:meth:`refresh`): its LEDs,
         coating and exposure as they have aged since the calibration; None: the calibration's
+    onnx : the ONNX file to run instead of the one beside the model (``nlips export MODEL --out F`` wrote it
+        elsewhere): the per-pixel export, or with ``full_frame`` the full-frame graph; "auto" then runs it, checked
+        as the one beside the model is (another model's is refused: named, it is not skipped); None: beside the model
     """
 
     def __init__(
@@ -124,9 +127,15 @@ class Predictor:
         device: str = "cpu",
         full_frame: bool = False,
         reference: np.ndarray | None = None,
+        onnx: str | Path | None = None,
     ):
         check_kind(model_path, PATH, "model_path", "the model file's path (str or Path)")
         check_kind(backend, str, "backend", "a backend's name ('auto', 'torch', 'onnx' ...)")
+        if onnx is not None:
+            check_kind(onnx, PATH, "onnx", "an ONNX file's path (str or Path), or None")
+        backend = onnx_backend(backend, onnx, device, full_frame)
+        self.onnx = None if onnx is None else Path(onnx)
+        """The ONNX file named to run (``onnx``), or None: the one beside the model."""
         check_flag(depth, "depth")  # "no" is truthy: it integrated the depth (s38-apikinds)
         check_flag(full_frame, "full_frame")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
@@ -168,7 +177,8 @@ class Predictor:
         if self.full_frame and self.backend == "onnx":  # the normals by MODEL.frame.onnx, the rest by .fullframe
             from .onnx_fullframe import FrameGraph, frame_graph_path
 
-            self._frame_graph = FrameGraph(frame_graph_path(self.model.path), self.model, threads)
+            graph = self.onnx or frame_graph_path(self.model.path)
+            self._frame_graph = FrameGraph(graph, self.model, threads)
         self.gain = None
         """(H, W, 3) float32 or None -- what each frame is multiplied by first (:meth:`refresh`)."""
         if reference is not None:
@@ -231,12 +241,14 @@ class Predictor:
         here: once, either way); None on a GPU or the whole frame (:mod:`.fullframe`)."""
         on_cpu = self.device is None or (self.full_frame and self.device.type == "cpu")
         asked = backend
-        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu, self.full_frame, self.model.digest)
-        if asked == "auto" and backend == "torch" and on_cpu:  # an export there of another model: skipped, said
-            from .exports import beside_export, of_another_model, skipped_warning
+        model = self.model
+        self.backend = backend = resolved_backend(model.path, backend, on_cpu, self.full_frame, model.digest, self.onnx)
+        if asked == "auto" and backend == "torch" and on_cpu:  # an export there that cannot run: skipped, said
+            from .exports import beside_export, skipped_warning, why_stale
 
-            if of_another_model(beside_export(self.model.path, self.full_frame), self.model.digest):
-                log.warning("%s", skipped_warning(self.model.path, self.full_frame))
+            why = why_stale(beside_export(model.path, self.full_frame), model.digest, self.full_frame)
+            if why is not None:
+                log.warning("%s", skipped_warning(model.path, why, self.full_frame))
         if self.device is not None:  # a GPU or the whole frame: run by .fullframe (its normals by the graph: onnx)
             return None
         if backend == "lut":  # a lookup table (learn.lut): NumPy and SciPy, no network runtime
@@ -245,7 +257,8 @@ class Predictor:
         if backend in ("onnx", "onnx-int8"):
             from .onnx_export import OnnxNet
 
-            return OnnxNet(Path(self.model.path).with_suffix(".onnx"), self.model, threads, int8=backend == "onnx-int8")
+            export = self.onnx or Path(self.model.path).with_suffix(".onnx")
+            return OnnxNet(export, self.model, threads, int8=backend == "onnx-int8")
         if backend != "torch":
             raise ShapeError(f"backend must be one of {BACKENDS}, got {backend!r}")
         import torch
@@ -501,23 +514,59 @@ def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return smooth_on_gel(frame, valid, REFRESH_SMOOTHING_PX)
 
 
+def onnx_backend(
+    backend: str, onnx: str | Path | None, device: str = "cpu", full_frame: bool = False, flag: bool = False
+) -> str:
+    """The backend a :class:`Predictor` given ``backend`` and the ONNX file ``onnx`` to run (None: the one beside the
+    model, ``backend`` as it is) runs: "onnx" for "auto", onnx and onnx-int8 as they are; ConfigError for "torch",
+    or a device where no ONNX file runs (a GPU: PyTorch runs every step there). ``flag``: worded for the command
+    line (``--onnx F``)."""
+    if onnx is None:
+        return backend
+    if not Path(onnx).is_file():  # before the model loads: the option's file, named as given
+        raise ConfigError(f"{said('onnx', onnx, flag)}: no such file (`nlips export MODEL --out FILE` writes one)")
+    if backend == "torch":
+        raise ConfigError(
+            f"{said('onnx', onnx, flag)} names an ONNX file for onnxruntime, {said('backend', 'torch', flag)} runs "
+            f"PyTorch: {'drop one of them' if flag else 'give backend=' + repr('onnx') + ' (the default is torch)'}"
+        )
+    if device != "cpu":
+        raise ConfigError(
+            f"{said('onnx', onnx, flag)} runs on the CPU (onnxruntime), {said('device', device, flag)} runs PyTorch "
+            "on the GPU: drop one of them"
+        )
+    return "onnx" if backend == "auto" else backend
+
+
 def resolved_backend(
-    model_path: str | Path, backend: str, on_cpu: bool = True, full_frame: bool = False, digest: str | None = None
+    model_path: str | Path,
+    backend: str,
+    on_cpu: bool = True,
+    full_frame: bool = False,
+    digest: str | None = None,
+    onnx: str | Path | None = None,
 ) -> str:
     """The runtime a :class:`Predictor` of ``model_path`` with ``backend`` runs (what its results record).
 
     PyTorch off the CPU (``on_cpu`` False: a GPU, run by :mod:`.fullframe`); "auto" is onnxruntime ("onnx") when the
     model was exported beside it (MODEL.onnx: ``nlips train`` writes one; with ``full_frame``, MODEL.frame.onnx:
     ``nlips export MODEL --full-frame``) and that export records this model's digest, else PyTorch (an export left
-    from before the model was trained again is skipped: :mod:`.exports`); any other as given; "lut" for a lookup
-    table's file (``learn.model.model_method``). ``digest``: the model file's (``onnx_export.bytes_digest``, of the
-    bytes loaded), read from the file when not given. Found from the file names, a table's first pickled strings
-    and the export's recorded digest alone (a few hundred bytes: ``onnx_export.recorded_digest``), so ``nlips
-    infer`` can tell that a re-run's results are all kept without loading the model or importing either runtime.
+    from before the model was trained again, or a ratio model's of before 2026-12-07, is skipped:
+    :func:`.exports.why_stale`); with ``onnx`` (an ONNX file named to run) "onnx" (:func:`onnx_backend`); any other
+    as given; "lut" for a lookup table's file (``learn.model.model_method``). ``digest``: the model file's
+    (``onnx_export.bytes_digest``, of the bytes loaded), read from the file when not given. Found from the file
+    names, a table's first pickled strings and the export's recorded metadata alone (a few hundred bytes:
+    ``onnx_export.recorded_metadata``), so ``nlips infer`` can tell that a re-run's results are all kept without
+    loading the model or importing either runtime.
     """
     from .model import model_method
 
     if model_method(model_path) == "lut":  # a lookup table runs on its own; what the others run is a network
+        if onnx is not None:
+            raise ConfigError(
+                f"{model_path}: a lookup table (`nlips lut`), run by NumPy and SciPy: the ONNX file {onnx} holds an "
+                "NLiPsNet network; leave it out"
+            )
         if backend != "auto":
             raise ConfigError(
                 f"{model_path}: a lookup table (`nlips lut`), run by NumPy and SciPy: backend {backend!r} runs an "
@@ -526,14 +575,15 @@ def resolved_backend(
         return "lut"
     if not on_cpu:
         return "torch"
+    backend = onnx_backend(backend, onnx)
     if backend == "auto":
-        from .exports import beside_export, of_another_model
+        from .exports import beside_export, why_stale
         from .onnx_export import file_digest
 
         export = beside_export(model_path, full_frame)
         if not export.is_file():
             return "torch"
-        return "torch" if of_another_model(export, digest or file_digest(model_path)) else "onnx"
+        return "torch" if why_stale(export, digest or file_digest(model_path), full_frame) else "onnx"
     return backend
 
 

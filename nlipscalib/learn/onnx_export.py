@@ -52,9 +52,13 @@ SIZE_SLACK = 1 << 20
 record): a larger file is refused before it is read."""
 
 
-def export_hint(model_path: str | Path, again: bool = False) -> str:
+def export_hint(model_path: str | Path, again: bool = False, export: str | Path | None = None) -> str:
     """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale
-    (``again``: damaged, so it is written again)."""
+    (``again``: damaged, so it is written again). ``export``: the file that was to run, when it is not MODEL.onnx
+    beside the model (named: ``--onnx F``), which ``nlips export MODEL --out F`` writes."""
+    if export is not None and Path(export) != Path(model_path).with_suffix(".onnx"):
+        command = f"`nlips export {shell_word(model_path)} --out {shell_word(export)}`"
+        return f"{command} writes it{' again' if again else ''}, or leave out --onnx"
     if again:
         return f"`nlips export {shell_word(model_path)}` writes it again, or use --backend torch"
     export = f"`nlips export {shell_word(model_path)}`"
@@ -81,11 +85,17 @@ def recorded_digest(path: str | Path) -> str | None:
     messages and parsing a ratio model's 4 MB export cost 22-26 ms of CPU (a ``nlips infer`` re-run that keeps every
     result, which reads the digest to choose its runtime before anything loads, takes 0.30 s; the walk 0.02 ms:
     benchmarks/RESULTS.md, s40-companions)."""
+    return recorded_metadata(path).get("model_digest")
+
+
+def recorded_metadata(path: str | Path) -> dict[str, str]:
+    """The metadata entries of the ONNX file at ``path`` (as :func:`recorded_digest` reads them: the top-level fields
+    walked, the graph skipped), empty when it cannot be read so."""
     try:
         with open(path, "rb") as f:
-            return _top_level_metadata(f).get("model_digest")
+            return _top_level_metadata(f)
     except (OSError, ValueError):  # unreadable, or not protobuf's wire format
-        return None
+        return {}
 
 
 MAX_TOP_LEVEL_FIELDS = 1000
@@ -388,7 +398,7 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
     """
     path = Path(path)
     expected = export_proto(model)
-    again = export_hint(model.path, again=True)
+    again = export_hint(model.path, again=True, export=path)
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -405,7 +415,8 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
         raise CaptureError(f"{path}: not a readable ONNX model (no graph): {again}")
     if {p.key: p.value for p in proto.metadata_props}.get("model_digest") != model.digest:
         raise CaptureError(
-            f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
+            f"{path}: exported from another model than {model.path}; export it again "
+            f"({export_hint(model.path, export=path)})"
         )
     old = _ratio_outside(proto, expected)
     if old:  # the model's own export, of an earlier release: named as such, not as a graph of another model
@@ -456,6 +467,21 @@ def _contract(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     return f"its graph maps {got}, NLiPsNet maps {_describe(want.input[0])} -> {_describe(want.output[0])}"
 
 
+RATIO_BEFORE = (
+    "exported before 2026-12-07, when a ratio model's ONNX file took the colours over the reference as its input "
+    "(now its graph divides them itself and takes the linear colours, as every model's does)"
+)
+"""What a ratio model's export of before is named by, when it is refused (:func:`check_export`) or skipped
+(``learn.exports``)."""
+
+
+def ratio_export_of_before(metadata: dict[str, str]) -> bool:
+    """Whether an export's metadata entries (:func:`recorded_metadata`) are those of a ratio model's export of before
+    2026-12-07 (:func:`_ratio_outside`): ``colour_input`` "ratio" and no ``input`` entry, which every export since
+    records (:func:`input_contract`). Per-pixel exports only: the full-frame graph records no ``input``."""
+    return metadata.get("colour_input") == "ratio" and "input" not in metadata
+
+
 def _ratio_outside(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     """A ratio model's export from before its graph divided the colours (up to 2026-12-07): it took the ratios as its
     input, where the export takes the linear colours. Run as it is with this release's inputs, its normals would be
@@ -465,10 +491,7 @@ def _ratio_outside(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | N
         return None
     if {p.key: p.value for p in proto.metadata_props}.get("colour_input") != "ratio":
         return None
-    return (
-        "exported before 2026-12-07, when a ratio model's ONNX file took the colours over the reference as its input "
-        "(now its graph divides them itself and takes the linear colours, as every model's does)"
-    )
+    return RATIO_BEFORE
 
 
 def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
@@ -601,7 +624,8 @@ class OnnxNet:
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
         path = Path(path)
         if not path.is_file():
-            raise CaptureError(f"{path}: ONNX model is missing ({export_hint(model.path if model else 'MODEL.pt')})")
+            hint = export_hint(model.path if model else "MODEL.pt", export=path)
+            raise CaptureError(f"{path}: ONNX model is missing ({hint})")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
@@ -614,7 +638,7 @@ class OnnxNet:
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise CaptureError(
                 f"{path}: not a readable ONNX model ({type(exc).__name__}): "
-                f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
+                f"{export_hint(model.path if model else 'MODEL.pt', again=True, export=path)}"
             ) from None
         if int8:  # the checked float file, quantised in memory
             float_model = data if isinstance(data, bytes) else path.read_bytes()

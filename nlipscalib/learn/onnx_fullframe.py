@@ -349,10 +349,14 @@ def full_frame_parity_deg(model: LoadedModel, onnx_path: str | Path, frames: lis
     return worst
 
 
-def full_frame_hint(model_path: str | Path) -> str:
-    """How to write the full-frame graph of the model at ``model_path`` (missing, stale or damaged)."""
+def full_frame_hint(model_path: str | Path, graph: str | Path | None = None) -> str:
+    """How to write the full-frame graph of the model at ``model_path`` (missing, stale or damaged); ``graph``: the
+    file that was to run, when it is not MODEL.frame.onnx beside the model (named: ``--onnx F``)."""
     from ..core.shell_words import shell_word
 
+    if graph is not None and Path(graph) != frame_graph_path(model_path):
+        command = f"`nlips export {shell_word(model_path)} --full-frame --out {shell_word(graph)}`"
+        return f"{command} writes it; or leave out --onnx"
     return f"`nlips export {shell_word(model_path)} --full-frame` writes it; or use --backend torch"
 
 
@@ -370,7 +374,7 @@ def check_full_frame(path: str | Path, model: LoadedModel) -> bytes:
     """
     from .onnx_export import SIZE_SLACK, _graph_difference, onnx_messages
 
-    path, hint = Path(path), full_frame_hint(model.path)
+    path, hint = Path(path), full_frame_hint(model.path, path)
     expected = full_frame_proto(model)  # a model without one (a lookup table, a wide bilateral disc): why, one line
     try:
         size = path.stat().st_size
@@ -417,7 +421,7 @@ class FrameGraph:
         try:
             self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
-            hint = full_frame_hint(model.path)
+            hint = full_frame_hint(model.path, path)
             raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {hint}") from None
         self.path = Path(path)
 

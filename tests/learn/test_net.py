@@ -452,7 +452,7 @@ def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_
     assert main(["export", str(model)]) == 0 and main(fresh) == 0
     # a copy elsewhere, checked alike; the wrong suffix and the ONNX file given as the model are one line each
     assert main(["export", str(model), "--out", str(tmp_path / "copy.onnx")]) == 0
-    assert "a copy: `nlips infer` and `nlips live` use" in capsys.readouterr().err
+    assert f"--onnx {tmp_path / 'copy.onnx'}` runs it" in capsys.readouterr().err
     for bad, problem in ((["--out", str(tmp_path / "x.pt")], "must end in .onnx"), ([], "the ONNX export")):
         target = str(model.with_suffix(".onnx")) if not bad else str(model)
         assert main(["export", target, *bad]) == 2

@@ -1,6 +1,6 @@
 """A ratio model's ONNX file is standalone: it takes every model's inputs (pixels and filtered linear colours) and
-divides the colours by its reference inside the graph; exports of earlier releases, which took the ratios, are refused
-with the way to write them again."""
+divides the colours by its reference inside the graph; exports of earlier releases, which took the ratios, are skipped
+by --backend auto and refused by --backend onnx, with the way to write them again."""
 
 import copy
 import json
@@ -120,12 +120,16 @@ def _export_of_before(model, path):
     return path
 
 
-def test_a_ratio_models_export_of_before_is_refused_in_one_line_and_export_mends_it(
-    trained_ratio, twin_presses, tmp_path, capsys
+def test_a_ratio_models_export_of_before_is_skipped_by_auto_refused_by_backend_onnx_and_export_mends_it(
+    trained_ratio, twin_presses, tmp_path, capsys, caplog
 ):
     """An .onnx written before the graph divided (its input the ratios): run with this release's inputs its normals
-    would be wrong without a word, so `nlips infer` (by default: the .onnx beside the model) stops in one line saying
-    how to write it again; `nlips export` does, and infer then runs it."""
+    would be wrong without a word, so it never runs. `nlips infer` (by default --backend auto: the .onnx beside the
+    model) skips it with one warning naming it and `nlips export MODEL`, and PyTorch runs the network, as for an
+    export of another model (it stopped in one line before: s41-exports2); --backend onnx, asked by name, stops in one
+    line saying how to write it again; `nlips export` does, and auto then runs it."""
+    import logging
+
     from nlipscalib.learn.onnx_export import OnnxNet
 
     model_path = tmp_path / "ratio.pt"
@@ -137,15 +141,26 @@ def test_a_ratio_models_export_of_before_is_refused_in_one_line_and_export_mends
     message = str(caught.value)
     assert "\n" not in message and message.startswith(f"{old}: exported before 2026-12-07, "), message
     assert message.endswith(f"`nlips export {model_path}` writes it again, or use --backend torch"), message
-    out = tmp_path / "out"
-    args = ["infer", str(model_path), str(twin_presses / HELD_OUT), "--out", str(out), "--no-progress"]
-    assert main(args) == 2
+    press = str(twin_presses / HELD_OUT)
+    onnx_args = ["infer", str(model_path), press, "--backend", "onnx", "--out", str(tmp_path / "o"), "--no-progress"]
+    assert main(onnx_args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nlips infer: error: {old}: exported before 2026-12-07"), err
-    assert not out.exists()
+    assert not (tmp_path / "o").exists()
+    caplog.set_level(logging.WARNING)
+    auto_args = ["infer", str(model_path), press, "--out", str(tmp_path / "auto"), "--no-progress"]
+    assert main(auto_args) == 0
+    said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING and "ratio.onnx" in r.getMessage()]
+    assert len(said) == 1, said
+    assert said[0].startswith(f"{old}: exported before 2026-12-07, when a ratio model's ONNX file took"), said
+    assert said[0].endswith(f"skipped, PyTorch runs the network; `nlips export {model_path}` writes it again"), said
+    report = json.loads((tmp_path / "auto" / HELD_OUT / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
+    assert report["backend"] == "torch"
     assert main(["export", str(model_path)]) == 0
-    assert main(args) == 0
-    assert "onnx" in capsys.readouterr().err
+    caplog.clear()
+    assert main(["infer", str(model_path), press, "--out", str(tmp_path / "mended"), "--no-progress"]) == 0
+    report = json.loads((tmp_path / "mended" / HELD_OUT / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
+    assert report["backend"] == "onnx" and "ratio.onnx" not in caplog.text
 
 
 def test_nlips_infer_divides_a_ratio_models_colours_once_with_either_backend(trained_ratio, twin_presses, tmp_path):

@@ -143,3 +143,133 @@ def test_auto_skips_a_per_pixel_export_of_another_model_and_a_kept_rerun_never_l
     assert main(["infer", str(model), press, "--backend", "onnx", "--out", str(tmp_path / "onnx")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "exported from another model" in err[0] and f"`nlips export {model}`" in err[0], err
+
+
+def _of_another_model(out, tmp_path, full_frame):
+    """Write beside the model ``out`` the export (``full_frame``: the full-frame graph) of another model of its
+    sensor, its weights 1 % larger: what an nlipscalib before the fortieth session left beside a model it trained
+    again, unchecked (as a file of another model would be); returns its path."""
+    import torch
+
+    from nlipscalib.learn.onnx_export import export_onnx
+    from nlipscalib.learn.onnx_fullframe import export_full_frame
+
+    other = tmp_path / "other" / out.name
+    other.parent.mkdir(exist_ok=True)
+    payload = torch.load(out, weights_only=True)
+    payload["state_dict"] = {k: v * 1.01 if v.is_floating_point() else v for k, v in payload["state_dict"].items()}
+    torch.save(payload, other)
+    if full_frame:
+        return export_full_frame(load_model(other), out.with_suffix(".frame.onnx"), check=False)[0]
+    return export_onnx(load_model(other), out.with_suffix(".onnx"))
+
+
+def _warnings(caplog):
+    return [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+
+
+def test_a_reused_training_makes_a_stale_full_frame_graph_again_and_leaves_a_current_one(
+    built,  # noqa: F811 (the fixture)
+    tmp_path,
+    capsys,
+    caplog,
+):
+    """The same `nlips train` again reuses the model (nothing published); MODEL.frame.onnx beside it of another model
+    (left by an nlipscalib whose retrain did not make it again) is made again for it, said with its check, so auto
+    runs it without a warning; run once more, the current graph is left as it is (not rewritten, nothing said)."""
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.onnx_fullframe import check_full_frame
+
+    out = tmp_path / "m.pt"
+    _trained_with_both_exports(built, out, capsys)
+    frame = _of_another_model(out, tmp_path, full_frame=True)
+    caplog.set_level(logging.WARNING)
+    assert Predictor(out, backend="auto", full_frame=True, depth=False).backend == "torch"  # skipped, said
+    assert "exported from another model" in caplog.text
+    caplog.clear()
+    args = ["train", str(built), "--out", str(out), "--hidden", "4", *TRAIN]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"{out}: reused" in err, err
+    stale = f"exported from another model than {out} (left from before it was trained again?)"
+    assert f"{frame}: made again ({stale}): onnxruntime's normal map vs PyTorch's full-frame path" in err, err
+    check_full_frame(frame, load_model(out))
+    assert not _warnings(caplog) and not _left(tmp_path)
+    assert Predictor(out, backend="auto", full_frame=True, depth=False).backend == "onnx"
+    assert "exported from another model" not in caplog.text
+    written = frame.stat().st_mtime_ns, out.with_suffix(".onnx").stat().st_mtime_ns
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"{out}: reused" in err and "made again" not in err and not _warnings(caplog), err
+    assert (frame.stat().st_mtime_ns, out.with_suffix(".onnx").stat().st_mtime_ns) == written
+
+
+def test_a_reused_training_with_no_onnx_removes_stale_exports_and_keeps_current_ones(
+    built,  # noqa: F811 (the fixture)
+    tmp_path,
+    capsys,
+    caplog,
+):
+    """`--no-onnx` on a reused model: its own exports are kept; exports of another model beside it (MODEL.onnx is not
+    checked whole then) are removed, one warning each naming the file, why and the command that writes the model's,
+    as a training that replaces a model says it."""
+    out = tmp_path / "m.pt"
+    _trained_with_both_exports(built, out, capsys)
+    args = ["train", str(built), "--out", str(out), "--hidden", "4", "--no-onnx", *TRAIN]
+    caplog.set_level(logging.WARNING)
+    assert main(args) == 0
+    assert f"{out}: reused" in capsys.readouterr().err and not _warnings(caplog)
+    assert out.with_suffix(".onnx").is_file() and out.with_suffix(".frame.onnx").is_file()
+    for full_frame in (False, True):
+        _of_another_model(out, tmp_path, full_frame)
+    assert main(args) == 0
+    assert f"{out}: reused" in capsys.readouterr().err
+    assert not out.with_suffix(".onnx").exists() and not out.with_suffix(".frame.onnx").exists()
+    lines = _warnings(caplog)
+    for name, what, command in (
+        ("m.onnx", "ONNX export", f"`nlips export {out}`"),
+        ("m.frame.onnx", "full-frame ONNX graph", f"`nlips export {out} --full-frame`"),
+    ):
+        said = [line for line in lines if line.startswith(f"{tmp_path / name}: ")]
+        assert len(said) == 1, lines
+        assert said[0] == (
+            f"{tmp_path / name}: the {what} beside the reused model, exported from another model than {out} (left from "
+            f"before it was trained again?), removed (not made again: --no-onnx); {command} writes the model's"
+        ), said
+    assert not _left(tmp_path)
+
+
+def test_a_reused_models_cut_short_full_frame_graph_that_cannot_be_made_again_is_removed_and_said(
+    built,  # noqa: F811 (the fixture)
+    tmp_path,
+    capsys,
+    caplog,
+    monkeypatch,
+):
+    """A MODEL.frame.onnx cut short (its metadata, written last, lost: it records no digest) beside a reused model is
+    made again; when that fails it is removed, one warning naming why it was stale, the failure and the command;
+    the run still exits 0 (the model and MODEL.onnx are whole)."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.learn import onnx_fullframe
+    from nlipscalib.learn.onnx_export import check_export
+
+    out = tmp_path / "m.pt"
+    _trained_with_both_exports(built, out, capsys)
+    frame = out.with_suffix(".frame.onnx")
+    frame.write_bytes(frame.read_bytes()[: frame.stat().st_size // 2])
+
+    def failing(model, path, check=True):
+        raise CaptureError(f"{path}: onnxruntime's normal map differs from PyTorch's full-frame path by 0.2 deg")
+
+    monkeypatch.setattr(onnx_fullframe, "export_full_frame", failing)
+    caplog.set_level(logging.WARNING)
+    assert main(["train", str(built), "--out", str(out), "--hidden", "4", *TRAIN]) == 0
+    assert f"{out}: reused" in capsys.readouterr().err
+    check_export(out.with_suffix(".onnx"), load_model(out))
+    assert not frame.exists()
+    said = [line for line in _warnings(caplog) if line.startswith(f"{frame}: ")]
+    assert len(said) == 1, _warnings(caplog)
+    assert "beside the reused model, records no model digest (cut short" in said[0], said
+    assert "differs from PyTorch's full-frame path by 0.2 deg" in said[0], said
+    assert said[0].endswith(f"`nlips export {out} --full-frame` writes the model's"), said
+    assert not _left(tmp_path)
