@@ -483,7 +483,10 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
     assert main(["eval", str(presses), "--result", str(out)]) == 0
     table, said = capsys.readouterr()  # stdout: the table alone; what it scored and left out, on stderr
     assert "press_a" in table and HELD_OUT in table and "mean" in table and "press_b" not in table
-    assert f"scoring {out}/*/nlipsnet against {presses}/*" in said and "not solved, skipped: press_b" in said
+    assert (
+        f"scoring {out}/*/nlipsnet against {presses}/*" in said
+        and "no nlipsnet result (not inferred), skipped: press_b" in said
+    )
     assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
     assert "holds no result of the presses" in capsys.readouterr().err
 
