@@ -836,7 +836,16 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         figure_files = figure_files.replace(ERROR_FIGURE, "")
     files = "result.npz, report.json" + (", points.ply" if ply else "") + figure_files
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
-    scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
+    # (frames alone said "nlips eval scores them", and `nlips eval OUT` then refused the folder)
+    from ..core.shell_words import shell_word
+
+    one_frame = f"nlips eval PRESS --result {shell_word(frames[0])}" if frames else ""
+    if not frames:
+        scores = "nlips eval scores them"
+    elif presses:
+        scores = f"nlips eval scores the presses'; a frame's against the press it shows: {one_frame}"
+    else:
+        scores = f"no ground truth: score one against the press it shows with {one_frame}"
     written = len(saved) - len(kept)
     if not kept:
         counts = f"saved: {written} result folder(s)"
