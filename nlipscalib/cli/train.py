@@ -74,7 +74,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="learning rate: plateau (default: lowered when validation stalls) or cosine (annealed over --epochs)",
     )
     p.add_argument("--batch-size", type=int, default=1024, help="samples per optimiser step (default 1024)")
-    p.add_argument("--lr", type=float, default=2e-3, help="Adam's learning rate (default 0.002)")
+    p.add_argument(
+        "--lr",
+        type=float,
+        default=2e-3,
+        help="the optimiser's learning rate (AdamW, or Adam with --weight-decay 0; default 0.002)",
+    )
     p.add_argument(
         "--weight-decay",
         type=float,
@@ -431,7 +436,9 @@ def _why_stopped(result: TrainResult, cfg: TrainConfig) -> str:
     """What ended the training: the epoch limit, early stopping, or the time limit (--max-minutes)."""
     done = len(result.history)
     if done >= cfg.max_epochs:
-        return f"stopped at the epoch limit (--epochs {cfg.max_epochs})"
+        # the README's quick walk (`--epochs 3`) ends so with a net far from trained: say when it still improved
+        still = "; still improving at its last epoch: more --epochs may help" if result.best_epoch == done - 1 else ""
+        return f"stopped at the epoch limit (--epochs {cfg.max_epochs}){still}"
     if done - 1 - result.best_epoch >= cfg.patience:
         return f"stopped early ({cfg.patience} epochs without a better validation AAE)"
     return f"stopped by the time limit (--max-minutes {cfg.max_seconds / 60:g}; more epochs may help)"

@@ -411,6 +411,8 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     assert printed == f"{out}\n"  # stdout: the model's file alone; how it trained on stderr
     printed = said
     assert f"best epoch {best} of 3," in printed and "stopped at the epoch limit (--epochs 3)" in printed
+    # a net whose last epoch was its best is still learning: the line says more epochs may help, else not
+    assert ("still improving at its last epoch: more --epochs may help" in printed) == (best == 3)
     assert printed.splitlines()[-1].startswith(f"next: nlips infer {out} ")  # what a new user does with the model
     curve = figures[0].axes[1]
     assert curve.get_title().startswith(f"best epoch {best}:")
