@@ -265,8 +265,8 @@ def run(args: argparse.Namespace) -> int:
         summary = (  # epochs numbered from 1 here (the stored history counts from 0)
             f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
             f"validation AAE {best['val_aae_deg']:.2f} deg "
-            f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)}; "
-            f"{_why_stopped(result, cfg)}; curve {curve}"
+            f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)} "
+            f"({_trained_on(result, exclude)}); {_why_stopped(result, cfg)}; curve {curve}"
         )
         angle = frame_angle = None
         # the full-frame graph of the model this run replaces (`nlips export MODEL --full-frame`): made again for the
@@ -430,6 +430,13 @@ def _contact_figure(aae: float | None) -> str:
     import math
 
     return f"contact {aae:.2f} deg" if aae is not None and math.isfinite(aae) else "no contact samples"
+
+
+def _trained_on(result: TrainResult, exclude: Sequence[str]) -> str:
+    """'6 presses trained on; kept out: press_0009, press_0010': a user who kept presses out to test on was not told
+    the run had left them out (nor how many presses the net learnt from)."""
+    kept = f"; kept out: {', '.join(exclude)}" if exclude else ""
+    return f"{len(result.train_presses)} presses trained on{kept}"
 
 
 def _why_stopped(result: TrainResult, cfg: TrainConfig) -> str:

@@ -199,13 +199,17 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert len(err) == 1 and "--threads" in err[0]
 
 
-def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
-    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset"."""
+def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path, capsys):
+    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset". The summary
+    says how many presses the net learnt from and which were kept out (it said neither: s41-userwalk)."""
     out = tmp_path / "m.pt"
     args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1"]
+    capsys.readouterr()
     assert main([*args, "--val-presses", "press_a, press_b", "--exclude", f" {HELD_OUT} ,", "--no-onnx"]) == 0
     info = load_model(out).info
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
+    trained = len(info["train_presses"])
+    assert f"on press_a, press_b ({trained} presses trained on; kept out: {HELD_OUT}); " in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
