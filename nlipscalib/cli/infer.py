@@ -841,9 +841,9 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
 
     one_frame = f"nlips eval PRESS --result {shell_word(frames[0])}" if frames else ""
     if not frames:
-        scores = "nlips eval scores them"
+        scores = f"{_press_eval(presses[0])} scores them"
     elif presses:
-        scores = f"nlips eval scores the presses'; a frame's against the press it shows: {one_frame}"
+        scores = f"{_press_eval(presses[0])} scores the presses'; a frame's against the press it shows: {one_frame}"
     else:
         scores = f"no ground truth: score one against the press it shows with {one_frame}"
     written = len(saved) - len(kept)
@@ -854,6 +854,17 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     else:
         counts = f"saved: {written} result folder(s), kept {len(kept)} as they were; all {len(saved)}"
     return f"{counts}{where} ({files}; {scores})"
+
+
+def _press_eval(result: Path) -> str:
+    """The `nlips eval` that scores a press's result folder ``result`` (PRESS/nlipsnet, PRESS/lut, or under --out
+    OUT/PRESS/<method>). Why: the line said "nlips eval scores them", and `nlips eval PRESSES` as typed scores the
+    NLiPs results, not the network's or table's, without a word."""
+    from ..core.shell_words import shell_word
+
+    if (result.parent / "meta.json").is_file():  # beside the press's own captures
+        return f"nlips eval PRESS --method {result.name}"
+    return f"nlips eval PRESSES --result {shell_word(result.parent.parent)}"
 
 
 def _where(folders: Sequence[Path], presses: bool = False) -> str:

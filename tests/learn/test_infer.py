@@ -1300,11 +1300,19 @@ def test_the_line_of_where_frames_results_are_lists_no_error_map(tmp_path):
         "(result.npz, report.json, normals.png, depth.png; no ground truth: score one against the press it shows "
         f"with nlips eval PRESS --result {frame})"
     ), frame_line
-    press_line = _where_saved([(tmp_path / "p" / "nlipsnet", True)], set(), ply=False, figures="maps")
-    assert "normals.png, depth.png, error.png with ground truth; nlips eval scores them)" in press_line, press_line
-    both = _where_saved([*frames, (tmp_path / "p" / "nlipsnet", True)], set(), ply=False, figures="maps")
+    press = tmp_path / "p"  # its result beside its captures: scored with --method (without it eval scored NLiPs')
+    press.mkdir()
+    (press / "meta.json").write_text("{}", encoding="utf-8")
+    press_line = _where_saved([(press / "nlipsnet", True)], set(), ply=False, figures="maps")
+    assert press_line.endswith(
+        "normals.png, depth.png, error.png with ground truth; nlips eval PRESS --method nlipsnet scores them)"
+    ), press_line
+    elsewhere = _where_saved([(tmp_path / "o" / "p" / "lut", True)], set(), ply=False, figures="maps")
+    assert elsewhere.endswith(f"; nlips eval PRESSES --result {tmp_path / 'o'} scores them)"), elsewhere
+    both = _where_saved([*frames, (press / "nlipsnet", True)], set(), ply=False, figures="maps")
     assert both.endswith(
-        f"nlips eval scores the presses'; a frame's against the press it shows: nlips eval PRESS --result {frame})"
+        "nlips eval PRESS --method nlipsnet scores the presses'; a frame's against the press it shows: "
+        f"nlips eval PRESS --result {frame})"
     ), both
 
 
