@@ -150,7 +150,7 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
     assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 0
-    assert "not solved, skipped: press_b" in capsys.readouterr().err
+    assert "no nlipsnet result (not inferred), skipped: press_b" in capsys.readouterr().err
     assert main(["eval", str(press / "nlips")]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("press_a")).split()
     assert float(row[4]) > 0.0 and float(row[2]) < 5.0  # NLiPs on exact data: small but not exact
