@@ -553,8 +553,14 @@ def _emulated_source(
     camera = EmulatedCamera(renders, lambda: board.latched, flush_frames=0)
     _light_tricolor(controller, tricolor_level(renders))
     surfaces = [None] + [s.press for s in script]
-    for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
-        renders.images(surface)
+    from ..progress import working
+
+    # render now, so the frame rate measures the stream, not the twin; said, as the stream was silent for the
+    # seconds (640x480: tens of seconds on a loaded 2-core CPU) before its first frame
+    size = f"{scene.camera.width}x{scene.camera.height}"
+    with working(f"rendering the emulated sensor's {len(surfaces)} scripted surfaces ({size}) before the stream"):
+        for surface in surfaces:
+            renders.images(surface)
     from ..device.live_leds import ResetWatch
 
     script = ScriptedStream(camera, surfaces, args.frames_per_press, loop)

@@ -94,8 +94,10 @@ def run(args: argparse.Namespace) -> int:
     if not result["failed"]:  # stdout: the dataset's folder alone, once no press failed (scripts); counts on stderr
         progress.print_result(out)
     failed = bool(result["failed"])
+    # --verify's reads said: its line was a plain rerun's, so a user could not tell the check had been made
+    checked = " (every file read, its CRC-32 checked)" if args.verify and result["skipped"] else ""
     progress.say(
-        f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
+        f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there{checked}, "
         f"{len(result['failed'])} failed",
         warning=failed,
     )

@@ -134,12 +134,18 @@ def run(args: argparse.Namespace) -> int:
             warning=True,
         )
     if unsolved:
-        say(f"not solved, skipped: {', '.join(unsolved)}", warning=True)
+        say(f"{_without_result(method)}, skipped: {', '.join(unsolved)}", warning=True)
     for name, problem in damaged:
         say(f"damaged, not scored: {name}: {problem}", warning=True)
     for name, problem in outdated:
         say(f"outdated, not scored: {name}: {problem}", warning=True)
     return 1 if damaged or outdated else 0
+
+
+def _without_result(method: str) -> str:
+    """How the presses left out for want of a ``method`` result are named: "not solved" only for NLiPs (said of
+    presses that had no NLiPsNet or lookup-table result, it read as if `nlips solve` were missing)."""
+    return "not solved" if method == "nlips" else f"no {method} result (not inferred)"
 
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:

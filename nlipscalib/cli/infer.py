@@ -837,7 +837,16 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         figure_files = figure_files.replace(ERROR_FIGURE, "")
     files = "result.npz, report.json" + (", points.ply" if ply else "") + figure_files
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
-    scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
+    # (frames alone said "nlips eval scores them", and `nlips eval OUT` then refused the folder)
+    from ..core.shell_words import shell_word
+
+    one_frame = f"nlips eval PRESS --result {shell_word(frames[0])}" if frames else ""
+    if not frames:
+        scores = f"{_press_eval(presses[0])} scores them"
+    elif presses:
+        scores = f"{_press_eval(presses[0])} scores the presses'; a frame's against the press it shows: {one_frame}"
+    else:
+        scores = f"no ground truth: score one against the press it shows with {one_frame}"
     written = len(saved) - len(kept)
     if not kept:
         counts = f"saved: {written} result folder(s)"
@@ -846,6 +855,17 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     else:
         counts = f"saved: {written} result folder(s), kept {len(kept)} as they were; all {len(saved)}"
     return f"{counts}{where} ({files}; {scores})"
+
+
+def _press_eval(result: Path) -> str:
+    """The `nlips eval` that scores a press's result folder ``result`` (PRESS/nlipsnet, PRESS/lut, or under --out
+    OUT/PRESS/<method>). Why: the line said "nlips eval scores them", and `nlips eval PRESSES` as typed scores the
+    NLiPs results, not the network's or table's, without a word."""
+    from ..core.shell_words import shell_word
+
+    if (result.parent / "meta.json").is_file():  # beside the press's own captures
+        return f"nlips eval PRESS --method {result.name}"
+    return f"nlips eval PRESSES --result {shell_word(result.parent.parent)}"
 
 
 def _where(folders: Sequence[Path], presses: bool = False) -> str:

@@ -269,8 +269,11 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:  # named by the folder asked for, not by the probe's name (romnt/xxxxxxx)
         raise type(exc)(exc.errno, exc.strerror or str(exc), str(out)) from None
     what = "undeformed dome" if press is None else "press"
+    # the light said too: a direct-light press and a one-bounce calibration differ by 31 % (infer warns of it later)
+    bounces = scene.render.bounces
+    light = "direct light" if bounces == 0 else f"{bounces} bounce{'s' if bounces > 1 else ''}"
     try:
-        with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp})"):
+        with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp}, {light})"):
             replace = args.overwrite or (out.is_dir() and bool(missing_files(out)))  # a torn press: _up_to_date
             path = render_press(scene, press, out, seed=args.seed, overwrite=replace)
     except FileExistsError:

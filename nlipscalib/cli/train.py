@@ -76,7 +76,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="learning rate: plateau (default: lowered when validation stalls) or cosine (annealed over --epochs)",
     )
     p.add_argument("--batch-size", type=int, default=1024, help="samples per optimiser step (default 1024)")
-    p.add_argument("--lr", type=float, default=2e-3, help="Adam's learning rate (default 0.002)")
+    p.add_argument(
+        "--lr",
+        type=float,
+        default=2e-3,
+        help="the optimiser's learning rate (AdamW, or Adam with --weight-decay 0; default 0.002)",
+    )
     p.add_argument(
         "--weight-decay",
         type=float,
@@ -266,8 +271,8 @@ def run(args: argparse.Namespace) -> int:
         summary = (  # epochs numbered from 1 here (the stored history counts from 0)
             f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
             f"validation AAE {best['val_aae_deg']:.2f} deg "
-            f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)}; "
-            f"{_why_stopped(result, cfg)}; curve {curve}"
+            f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)} "
+            f"({_trained_on(result, exclude)}); {_why_stopped(result, cfg)}; curve {curve}"
         )
         angle = frame_angle = None
         # the full-frame graph of the model this run replaces (`nlips export MODEL --full-frame`): made again for the
@@ -477,11 +482,20 @@ def _contact_figure(aae: float | None) -> str:
     return f"contact {aae:.2f} deg" if aae is not None and math.isfinite(aae) else "no contact samples"
 
 
+def _trained_on(result: TrainResult, exclude: Sequence[str]) -> str:
+    """'6 presses trained on; kept out: press_0009, press_0010': a user who kept presses out to test on was not told
+    the run had left them out (nor how many presses the net learnt from)."""
+    kept = f"; kept out: {', '.join(exclude)}" if exclude else ""
+    return f"{len(result.train_presses)} presses trained on{kept}"
+
+
 def _why_stopped(result: TrainResult, cfg: TrainConfig) -> str:
     """What ended the training: the epoch limit, early stopping, or the time limit (--max-minutes)."""
     done = len(result.history)
     if done >= cfg.max_epochs:
-        return f"stopped at the epoch limit (--epochs {cfg.max_epochs})"
+        # the README's quick walk (`--epochs 3`) ends so with a net far from trained: say when it still improved
+        still = "; still improving at its last epoch: more --epochs may help" if result.best_epoch == done - 1 else ""
+        return f"stopped at the epoch limit (--epochs {cfg.max_epochs}){still}"
     if done - 1 - result.best_epoch >= cfg.patience:
         return f"stopped early ({cfg.patience} epochs without a better validation AAE)"
     return f"stopped by the time limit (--max-minutes {cfg.max_seconds / 60:g}; more epochs may help)"

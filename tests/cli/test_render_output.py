@@ -265,3 +265,15 @@ def test_a_press_files_missing_mesh_names_the_press_file_and_where_the_path_was_
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"nlips render: error: {spec}: indenter mesh {absolute}: no such file"]
     assert not (tmp_path / "p").exists()
+
+
+@pytest.mark.parametrize("bounces, light", [([], "direct light"), (["--bounces", "1"], "1 bounce")])
+def test_the_render_line_says_the_light_as_well_as_size_and_spp(tmp_path, monkeypatch, caplog, bounces, light):
+    """A new lab's walk: `nlips render ... --bounces 1 --spp 16` said "rendering press (160x120, spp 16)", the same
+    as a direct-light render's line, though a model calibrated on one-bounce presses warns on direct-light frames."""
+    import logging
+
+    monkeypatch.setattr(sim_press, "render_press", lambda scene, press, out_folder, **kw: Path(out_folder))
+    caplog.set_level(logging.INFO)
+    assert main([*TINY, *bounces, "--out", str(tmp_path / "p")]) == 0
+    assert f"rendering press (96x72, spp 1, {light}) ..." in caplog.text, caplog.text

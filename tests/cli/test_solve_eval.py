@@ -150,7 +150,7 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
     assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 0
-    assert "not solved, skipped: press_b" in capsys.readouterr().err
+    assert "no nlipsnet result (not inferred), skipped: press_b" in capsys.readouterr().err
     assert main(["eval", str(press / "nlips")]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("press_a")).split()
     assert float(row[4]) > 0.0 and float(row[2]) < 5.0  # NLiPs on exact data: small but not exact
@@ -203,6 +203,20 @@ def test_eval_quiet_prints_the_table_alone_and_still_says_what_it_left_out(data,
     out, err = capsys.readouterr()
     assert [line.split()[0] for line in out.splitlines()] == ["press", "press_a"]
     assert err == "not solved, skipped: press_b\n"
+
+
+@pytest.mark.parametrize("method", ["nlipsnet", "lut"])
+def test_eval_names_presses_without_a_network_or_table_result_as_not_inferred(data, capsys, method):
+    """A new lab's walk: `nlips eval SESSION --method nlipsnet` after inferring only the held-out presses said
+    "not solved, skipped: press_0001, ..." of presses NLiPs had solved: it now names the missing result."""
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    shutil.copytree(root / "press_a" / "nlips", root / "press_a" / method)  # a result in the core format
+    capsys.readouterr()
+    assert main(["-q", "eval", str(root), "--method", method]) == 0
+    out, err = capsys.readouterr()
+    assert [line.split()[0] for line in out.splitlines()] == ["press", "press_a"]
+    assert err == f"no {method} result (not inferred), skipped: press_b\n"
 
 
 def test_eval_of_several_presses_gives_their_mean_and_the_pooled_figures(data, capsys):

@@ -483,7 +483,10 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
     assert main(["eval", str(presses), "--result", str(out)]) == 0
     table, said = capsys.readouterr()  # stdout: the table alone; what it scored and left out, on stderr
     assert "press_a" in table and HELD_OUT in table and "mean" in table and "press_b" not in table
-    assert f"scoring {out}/*/nlipsnet against {presses}/*" in said and "not solved, skipped: press_b" in said
+    assert (
+        f"scoring {out}/*/nlipsnet against {presses}/*" in said
+        and "no nlipsnet result (not inferred), skipped: press_b" in said
+    )
     assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
     assert "holds no result of the presses" in capsys.readouterr().err
 
@@ -1034,7 +1037,9 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
     command, _ = _frames_and_a_press(tiny_model, tmp_path)
     out = tmp_path / "frames-out"
     assert main(["infer", command[1], command[2], "--out", str(out)]) == 0
-    assert "; a frame's: nlips eval PRESS --result FOLDER)" in capsys.readouterr().err
+    said = capsys.readouterr().err
+    assert "nlips eval scores them" not in said  # `nlips eval OUT` refuses a folder of frames' results
+    assert f"no ground truth: score one against the press it shows with nlips eval PRESS --result {out}/" in said
     assert main(["eval", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert (
@@ -1290,9 +1295,25 @@ def test_the_line_of_where_frames_results_are_lists_no_error_map(tmp_path):
 
     frames = [(tmp_path / "out" / f"f{i}", False) for i in range(3)]
     frame_line = _where_saved(frames, set(), ply=False, figures="maps")
-    assert "(result.npz, report.json, normals.png, depth.png; nlips eval scores them" in frame_line, frame_line
-    press_line = _where_saved([(tmp_path / "p" / "nlipsnet", True)], set(), ply=False, figures="maps")
-    assert "normals.png, depth.png, error.png with ground truth;" in press_line, press_line
+    frame = tmp_path / "out" / "f0"
+    assert frame_line.endswith(
+        "(result.npz, report.json, normals.png, depth.png; no ground truth: score one against the press it shows "
+        f"with nlips eval PRESS --result {frame})"
+    ), frame_line
+    press = tmp_path / "p"  # its result beside its captures: scored with --method (without it eval scored NLiPs')
+    press.mkdir()
+    (press / "meta.json").write_text("{}", encoding="utf-8")
+    press_line = _where_saved([(press / "nlipsnet", True)], set(), ply=False, figures="maps")
+    assert press_line.endswith(
+        "normals.png, depth.png, error.png with ground truth; nlips eval PRESS --method nlipsnet scores them)"
+    ), press_line
+    elsewhere = _where_saved([(tmp_path / "o" / "p" / "lut", True)], set(), ply=False, figures="maps")
+    assert elsewhere.endswith(f"; nlips eval PRESSES --result {tmp_path / 'o'} scores them)"), elsewhere
+    both = _where_saved([*frames, (press / "nlipsnet", True)], set(), ply=False, figures="maps")
+    assert both.endswith(
+        "nlips eval PRESS --method nlipsnet scores the presses'; a frame's against the press it shows: "
+        f"nlips eval PRESS --result {frame})"
+    ), both
 
 
 def test_a_press_and_a_frame_get_the_solves_figures_beside_their_results(tiny_model, tmp_path, capsys, monkeypatch):

@@ -199,13 +199,17 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert len(err) == 1 and "--threads" in err[0]
 
 
-def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
-    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset"."""
+def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path, capsys):
+    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset". The summary
+    says how many presses the net learnt from and which were kept out (it said neither: s41-userwalk)."""
     out = tmp_path / "m.pt"
     args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1"]
+    capsys.readouterr()
     assert main([*args, "--val-presses", "press_a, press_b", "--exclude", f" {HELD_OUT} ,", "--no-onnx"]) == 0
     info = load_model(out).info
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
+    trained = len(info["train_presses"])
+    assert f"on press_a, press_b ({trained} presses trained on; kept out: {HELD_OUT}); " in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
@@ -411,6 +415,8 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     assert printed == f"{out}\n"  # stdout: the model's file alone; how it trained on stderr
     printed = said
     assert f"best epoch {best} of 3," in printed and "stopped at the epoch limit (--epochs 3)" in printed
+    # a net whose last epoch was its best is still learning: the line says more epochs may help, else not
+    assert ("still improving at its last epoch: more --epochs may help" in printed) == (best == 3)
     assert printed.splitlines()[-1].startswith(f"next: nlips infer {out} ")  # what a new user does with the model
     curve = figures[0].axes[1]
     assert curve.get_title().startswith(f"best epoch {best}:")

@@ -37,6 +37,9 @@ def test_a_small_steep_contact_is_warned_about_naming_the_frame():
     why = steepness_warning(changed, normals, reference, "frames/f7.png", None)
     assert why is not None and why.startswith("frames/f7.png: contact about 10 px across")
     assert "deg/px NLiPsNet resolves" in why and "calibration press" not in why
+    # beyond the network's own figure alone: steeper calibration presses would not lift it, so they are not advised
+    assert why.endswith("; capture at a higher resolution or press with a larger indenter"), why
+    assert "calibrate with presses" not in why
 
 
 def test_a_large_gentle_contact_is_not_warned_about():
@@ -52,6 +55,7 @@ def test_steeper_than_the_calibration_is_warned_about_below_the_solves_rule():
     why = steepness_warning(changed, normals, reference, "press9", calibrated_per_px=0.1)
     assert why is not None and "the 0.10 deg/px of the steepest calibration press" in why
     assert "NLiPsNet resolves" not in why
+    assert why.endswith("or calibrate with presses as small and steep"), why  # what lifts this limit
 
 
 def test_a_tables_normals_are_held_to_its_own_lower_figure():

@@ -206,8 +206,11 @@ def test_a_stream_is_not_mixed_with_other_inputs(trained, twin_presses, video, c
     assert "--camera" in _one_line_error(capsys)
 
 
-def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
-    """`nlips infer --emulate`: the emulated camera, opened the way `nlips live` opens it."""
+def test_emulated_sensor_streams_through_infer(tmp_path, capsys, caplog):
+    """`nlips infer --emulate`: the emulated camera, opened the way `nlips live` opens it; the twin's renders
+    before the first frame are said (the stream was silent for them)."""
+    import logging
+
     from nlipscalib.core import load_press
     from nlipscalib.core.sensor_record import sensor_of
     from nlipscalib.learn.dataset import reference_arrays
@@ -227,8 +230,11 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     )
     capsys.readouterr()
     args = ["infer", str(model), *size, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "o")]
+    caplog.set_level(logging.INFO)
     assert main(args) == 0
     assert "4 frames in" in capsys.readouterr().err
+    said = caplog.text  # the undeformed dome and the default script's 3 presses
+    assert "rendering the emulated sensor's 4 scripted surfaces (64x48) before the stream ..." in said, said
     first = np.load(tmp_path / "o" / "frame_000000.npz")  # the undeformed gel: reference normals where unchanged
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)

@@ -545,7 +545,12 @@ def test_a_file_changed_inside_at_its_size_is_rendered_again_with_verify(tmp_pat
     said = "gt.npz changed since it was written (its CRC-32 is not the one checksums.json records)"
     assert f"press_0002: {said}; rendering it again" in caplog.text
     calls.clear()
+    capsys.readouterr()
     assert main([*args, "--verify"]) == 0 and calls == []
+    # the summary says the presses kept (and the reference) were read whole (it was a plain rerun's line)
+    assert (
+        f"{out}: 0 rendered, 3 already there (every file read, its CRC-32 checked), 0 failed" in capsys.readouterr().err
+    )
 
 
 def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
