@@ -15,7 +15,9 @@ stale MODEL.onnx) and make it again or remove it.
 Run: .venv/bin/python benchmarks/bench_reused_train.py --before /tmp/s41/exports2-before \\
      --dataset /tmp/s41/exports2-bench/calib --model /tmp/s41/exports2-bench/m/net.pt \\
      --out /tmp/s41/exports2-bench/runs --train-args "--epochs 2 --no-progress" [--pairs 10]
-Prints Markdown; the results are in benchmarks/RESULTS.md (s41-exports2).
+Prints Markdown; the results are in benchmarks/RESULTS.md (s41-exports2; s41-trainreuse: ``--reruns-only``, both
+orders, the re-run deciding to reuse before it builds the net and optimiser). A checkout whose ``core/`` or ``learn/``
+differs from the model's trains its copy once first (said: "trained once, then reused").
 """
 
 from __future__ import annotations

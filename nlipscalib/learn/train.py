@@ -381,7 +381,6 @@ def _train(
 
     clean_interrupted_writes(out)
     data = _training_data(dataset, cfg, val_names, exclude)
-    net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr, device)
     data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
@@ -395,6 +394,9 @@ def _train(
             return TrainResult(out, epochs, best_epoch, data.train_names, data.val_names, reused=True)
         # as `nlips solve` solves a result of other code again: its weights are not what this code makes
         log.warning("%s: %s: trained again, replaced when this run ends (another --out keeps it)", out, why)
+    # built once the run is known to train: a reused model needs no net, and the optimiser's first construction
+    # imports torch._dynamo (~1.5 s of CPU, most of a kept re-run's); the seed is set here, so its weights are the same
+    net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr, device)
     state = resume(out, progress_path, cfg, data_key, net, opt, sched, device=device.type)
     if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(

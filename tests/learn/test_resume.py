@@ -555,6 +555,27 @@ def torch_equal(a, b) -> bool:
     return bool(torch.equal(a, b))
 
 
+def test_a_kept_re_run_decides_before_building_an_optimiser(built, tmp_path, monkeypatch):
+    """A re-run that reuses its finished model built the net, AdamW and its scheduler first, and the optimiser's first
+    construction imports torch._dynamo: ~1.5 s of a 2.7-4.4 s CPU re-run (s41-trainreuse). Now it reuses the model
+    with the optimiser's constructor refusing; a run that trains still builds it (the patch bites)."""
+    import torch
+
+    cfg = TrainConfig(hidden=(8,), dropout=0.2, max_epochs=2, patience=5, threads=1)
+    out = tmp_path / "m" / "net.pt"
+    first = train(built, cfg, out, progress=False)
+    before = out.read_bytes()
+
+    def refused(self, *args, **kwargs):
+        raise AssertionError("an optimiser was built")
+
+    monkeypatch.setattr(torch.optim.Optimizer, "__init__", refused)
+    again = train(built, cfg, out, progress=False, reuse=True)
+    assert again.reused and again.history == first.history and out.read_bytes() == before
+    with pytest.raises(AssertionError, match="an optimiser was built"):
+        train(built, cfg, tmp_path / "other" / "net.pt", progress=False, reuse=True)
+
+
 def test_a_training_without_onnx_removes_the_export_of_the_model_it_replaces(built, tmp_path, capsys):
     """`--no-onnx` into an --out that held another run's .pt and .onnx left that .onnx beside the new .pt."""
     out = tmp_path / "m.pt"
