@@ -5,14 +5,12 @@ per-colour gain over the reference taken out first (``ChangeDetector.channel_rat
 would see), and the video's normals on the PNG's region (whether the normals or the region differ). Also the change
 rule's noise figures (median and MAD of the smoothed difference, over the reference's level).
 
-Usage: python benchmarks/bench_lossy_steepness.py MODEL.pt VIDEO DATASET [COUNT]
-    VIDEO: the presses' tri-colour frames in order (press_0001 first), e.g. an MJPG .avi; DATASET: the folder of
-    press_0001 ... whose tricolor.png the video was made from; COUNT: presses (default 10).
+Usage: python benchmarks/bench_lossy_steepness.py MODEL.pt VIDEO DATASET [COUNT] (--help: what each is).
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 
 import cv2
 import numpy as np
@@ -82,6 +80,10 @@ def main(model: str, video: str, dataset: str, count: int = 10) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) not in (4, 5):
-        sys.exit(__doc__.split("Usage: ")[1].split("\n")[0])
-    main(*sys.argv[1:4], *(int(a) for a in sys.argv[4:]))
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", help="the model file (.pt) from nlips train")
+    parser.add_argument("video", help="the presses' tri-colour frames in order, press_0001 first (an MJPG .avi)")
+    parser.add_argument("dataset", help="the folder of press_0001 ... whose tricolor.png the video was made from")
+    parser.add_argument("count", type=int, nargs="?", default=10, help="presses (default 10)")
+    args = parser.parse_args()
+    main(args.model, args.video, args.dataset, args.count)
