@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from .options import RENDER_WORKERS_HELP
 
 if TYPE_CHECKING:  # named in hints only
+    from collections.abc import Iterable
     from pathlib import Path
 
     from ..sim.dataset import DatasetSpec, PressJob
@@ -97,13 +98,28 @@ def run(args: argparse.Namespace) -> int:
     # --verify's reads said: its line was a plain rerun's, so a user could not tell the check had been made
     checked = " (every file read, its CRC-32 checked)" if args.verify and result["skipped"] else ""
     progress.say(
-        f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there{checked}, "
-        f"{len(result['failed'])} failed",
+        f"{out}: {_counted(result['rendered'])} rendered, {_counted(result['skipped'])} already there{checked}, "
+        f"{_counted(name for name, _ in result['failed'])} failed",
         warning=failed,
     )
     if failed:  # each failure's error was logged as it happened (sim.dataset_pool): named here, not said twice
         progress.say("  failed, each said above: " + ", ".join(name for name, _ in result["failed"]), warning=True)
     return 1 if result["failed"] else 0
+
+
+def _counted(names: Iterable[str]) -> str:
+    """The summary's count of ``names``: "10 presses and the undeformed reference", "1 press", "the undeformed
+    reference", "0" (none; a 10-press spec's first run said "11 rendered": the reference counted as a press)."""
+    from ..sim.dataset_spec import REFERENCE_NAME
+
+    names = list(names)
+    if not names:
+        return "0"
+    count = sum(name != REFERENCE_NAME for name in names)
+    presses = f"{count} press{'' if count == 1 else 'es'}"
+    if REFERENCE_NAME not in names:
+        return presses
+    return f"{presses} and the undeformed reference" if count else "the undeformed reference"
 
 
 def _render(

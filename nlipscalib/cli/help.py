@@ -216,6 +216,17 @@ class VersionAction(argparse.Action):
         parser.exit()
 
 
+DONE_BY = {
+    "coverage": "the coverage report and where to press next are written by nlips calibrate (coverage.png and "
+    "coverage.json beside its dataset)",
+    "onnx": "nlips train writes the ONNX export beside the model; nlips export MODEL writes it again or elsewhere",
+    "predict": "nlips infer MODEL runs a model on presses, frames or a video",
+    "table": "nlips lut builds the lookup-table baseline",
+}
+"""What a user types for a job that no command of its name does, and the command that does it: said instead of
+argparse's bare "invalid choice" (a new lab's first-day walk looked for ``nlips coverage``, s41-userwalk)."""
+
+
 class Parser(argparse.ArgumentParser):
     """argparse's parser saying the close match of a mistyped command, choice or option ("did you mean
     'solve'?", :func:`difflib.get_close_matches`), and a mistyped option with the usage of the command it was
@@ -244,6 +255,12 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         match = _INVALID_CHOICE.search(message)
+        if match and message.startswith("argument COMMAND:") and match["typed"] in DONE_BY:
+            # a word for what a command does, not a command: one line naming that command, not a bare list
+            commands = ", ".join(re.findall(r"'([^']*)'", match["choices"]))
+            self.exit(
+                2, f"{self.prog}: no command '{match['typed']}': {DONE_BY[match['typed']]}; commands: {commands}\n"
+            )
         if match:
             hint = _did_you_mean(match["typed"], re.findall(r"'([^']*)'", match["choices"]))
             if hint:  # before the list of choices, which can be long (the commands)

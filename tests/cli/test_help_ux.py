@@ -54,6 +54,17 @@ def test_a_mistyped_command_is_answered_with_the_close_one(capsys):
     assert "invalid choice: 'slove' (did you mean 'solve'?)" in err
 
 
+def test_a_job_typed_as_a_command_names_the_command_that_does_it_in_one_line(capsys):
+    """`nlips coverage` (a new lab looking for the where-to-press-next report) got argparse's usage and a bare
+    "invalid choice" list (s41-userwalk); a mistyped command keeps its close match."""
+    err = _error(capsys, "coverage", "out/small")
+    assert err.startswith("nlips: no command 'coverage': ") and err.count("\n") == 1, err
+    assert "written by nlips calibrate (coverage.png" in err and "commands: render, dataset, " in err
+    assert "invalid choice" not in err and "usage:" not in err
+    err = _error(capsys, "slove", "PRESS")
+    assert "no command" not in err and "did you mean 'solve'?" in err
+
+
 def test_a_mistyped_option_names_the_close_one_under_its_commands_usage(capsys):
     """argparse said "nlips: error: unrecognized arguments: --rio" under nlips's own usage line."""
     err = _error(capsys, "solve", "PRESS", "--rio", "auto")

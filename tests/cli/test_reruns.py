@@ -22,7 +22,7 @@ def test_dataset_rerun_with_changed_spec_is_not_silent(tmp_path, monkeypatch, ca
     manifest = (out / "dataset.json").read_text(encoding="utf-8")
     assert len(json.loads(manifest)["presses"]) == 5  # the whole spec, whatever --limit renders
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    assert "2 rendered, 3 already there" in capsys.readouterr().err
+    assert "2 presses rendered, 2 presses and the undeformed reference already there" in capsys.readouterr().err
 
     spec.write_text(SPEC.replace("spp = 1", "spp = 2"), encoding="utf-8")
     calls.clear()
@@ -48,7 +48,7 @@ def test_dataset_rerenders_a_press_folder_without_meta_json(tmp_path, monkeypatc
     capsys.readouterr()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     captured = capsys.readouterr()
-    assert "1 rendered, 4 already there, 0 failed" in captured.err
+    assert "1 press rendered, 3 presses and the undeformed reference already there, 0 failed" in captured.err
     assert calls == ["press_0003"] and (out / "press_0003" / "meta.json").is_file()
     assert not (out / "press_0003" / "led_01.png").exists()  # the old folder went, not merged
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]

@@ -103,7 +103,7 @@ def test_dataset_quiet_keeps_its_failures_and_prints_no_folder_while_a_press_fai
     assert main(["-q", "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 1
     captured = capsys.readouterr()
     err = captured.err.splitlines()
-    assert captured.out == "" and f"{out}: 0 rendered, 0 already there, 1 failed" in err, captured
+    assert captured.out == "" and f"{out}: 0 rendered, 0 already there, 1 press failed" in err, captured
     # the press's error once, logged as it happened (an ERROR record), and the counts naming the press without
     # repeating it (as a folder solve does; in a process of its own the record is the stderr line "ERROR press_0001
     # failed: ...")

@@ -352,7 +352,8 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     assert main(args) == 0
     assert calls == ["reference", "press_0001"]
     said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
-    assert said.out == f"{out}\n" and f"{out}: 2 rendered, 1 already there, 0 failed" in said.err.splitlines()
+    counts = f"{out}: 1 press and the undeformed reference rendered, 1 press already there, 0 failed"
+    assert said.out == f"{out}\n" and counts in said.err.splitlines()
     assert "led_02.png missing; rendering it again" in caplog.text
     assert not [p for p in out.rglob("*") if p.name.startswith((".tmp-", ".claim-"))]
     calls.clear()
@@ -377,7 +378,8 @@ def test_a_press_with_a_file_left_empty_is_rendered_again_not_counted_as_there(t
     assert main(args) == 0
     assert calls == ["press_0002"]
     said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
-    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
+    counts = f"{out}: 1 press rendered, 1 press and the undeformed reference already there, 0 failed"
+    assert said.out == f"{out}\n" and counts in said.err.splitlines()
     assert "press_0002: led_02.png empty, gt.npz empty; rendering it again" in caplog.text
     assert (out / "press_0002" / "led_02.png").stat().st_size > 0
     calls.clear()
@@ -402,7 +404,8 @@ def test_a_press_with_a_file_cut_short_is_rendered_again_not_counted_as_there(tm
     assert main(args) == 0
     assert calls == ["press_0001"]
     said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
-    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
+    counts = f"{out}: 1 press rendered, 1 press and the undeformed reference already there, 0 failed"
+    assert said.out == f"{out}\n" and counts in said.err.splitlines()
     said = "press_0001: led_01.png cut short (no PNG end chunk), reference.npz cut short (no zip end record)"
     assert f"{said}; rendering it again" in caplog.text
     calls.clear()
@@ -430,7 +433,8 @@ def test_a_press_whose_meta_json_is_cut_short_is_rendered_again_when_the_dataset
     assert main(args) == 0
     assert calls == ["press_0001"] and meta.read_bytes() == whole
     said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
-    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
+    counts = f"{out}: 1 press rendered, 1 press and the undeformed reference already there, 0 failed"
+    assert said.out == f"{out}\n" and counts in said.err.splitlines()
     assert "press_0001: meta.json damaged (not valid JSON" in caplog.text and "rendering it again" in caplog.text
     calls.clear()
     assert main(args) == 0 and calls == []  # whole again
@@ -518,7 +522,8 @@ def test_a_finished_press_whose_file_changed_is_rendered_again_alone_and_named(
     monkeypatch.setattr(press_checksums, "damage_inside", lambda p: pytest.fail(f"{p} read without --verify"))
     assert main(args) == 0 and calls == ["press_0002"]
     assert f"{out / 'press_0002'}: {said}; rendering it again" in caplog.text
-    assert f"{out}: 1 rendered, 3 already there, 0 failed" in capsys.readouterr().err.splitlines()
+    counts = f"{out}: 1 press rendered, 2 presses and the undeformed reference already there, 0 failed"
+    assert counts in capsys.readouterr().err.splitlines()
     assert read and {p.parent.name for p in read} == {"press_0002"}  # its new record written, nothing else read
     calls.clear()
     read.clear()
@@ -548,9 +553,8 @@ def test_a_file_changed_inside_at_its_size_is_rendered_again_with_verify(tmp_pat
     capsys.readouterr()
     assert main([*args, "--verify"]) == 0 and calls == []
     # the summary says the presses kept (and the reference) were read whole (it was a plain rerun's line)
-    assert (
-        f"{out}: 0 rendered, 3 already there (every file read, its CRC-32 checked), 0 failed" in capsys.readouterr().err
-    )
+    checked = "already there (every file read, its CRC-32 checked), 0 failed"
+    assert f"{out}: 0 rendered, 2 presses and the undeformed reference {checked}" in capsys.readouterr().err
 
 
 def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
@@ -633,7 +637,8 @@ def test_presses_are_numbered_from_1_as_a_capture_session_s_and_an_old_folder_ke
     capsys.readouterr()
     assert main([*args, str(old), "--limit", "3"]) == 0 and calls == ["press_0002"]  # its third press, old name
     said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
-    assert said.out == f"{old}\n" and f"{old}: 1 rendered, 3 already there, 0 failed" in said.err.splitlines()
+    counts = f"{old}: 1 press rendered, 2 presses and the undeformed reference already there, 0 failed"
+    assert said.out == f"{old}\n" and counts in said.err.splitlines()
     assert ds.first_press_number(old) == 0 and ds.first_press_number(new) == 1
     names = sorted(p.name for p in old.iterdir() if p.is_dir())
     assert names == ["press_0000", "press_0001", "press_0002", "reference"]
