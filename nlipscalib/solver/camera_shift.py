@@ -36,6 +36,17 @@ SHIFT_LIT = 1e-3
 """Blocks whose image is below this (linear, full scale 1) under one of the LEDs are left out."""
 SHIFT_REWEIGHTS = 3
 """Weighted least-squares solves per step, each weighting the residual the previous one leaves."""
+SHIFT_ALLOWANCE = 3.0
+"""Pixels: a block whose log image changed more than a shift of this size explains (its gradient times it) by more
+than :data:`SHIFT_CHANGE_NOISE` times the noise, under any LED, is the dent's and left out (:func:`changed_blocks`)."""
+SHIFT_CHANGE_NOISE = 5.0
+"""Noise levels (the block images' noise, :func:`block_noise`) a block's change must pass beyond the shift's
+allowance to be the dent's."""
+SHIFT_NOISE_FLOOR = 1e-3
+"""The least noise (log, per block) :func:`changed_blocks` assumes: exact or 16-bit images hold almost none, and a
+most common change needs a window of some width."""
+SHIFT_CHANGE_GROW = 2
+"""Blocks the dent's changed blocks are grown by: its fringe, changed by less than the noise bound, goes with it."""
 
 
 def camera_shift(
@@ -67,6 +78,7 @@ def camera_shift(
     # away from the gel's outline and the image's border by more than a shift to be found, and lit by every LED: the
     # log's jump at an outline (or where an LED does not reach) is no shading to align
     inner = masks.erode(inner, iterations=SHIFT_MARGIN) & (ref > np.log(SHIFT_LIT)).all(axis=0)
+    inner &= ~changed_blocks(ref, img, inner, block)
     if inner.sum() < 100:
         return 0.0, 0.0
     gy, gx = np.gradient(ref, axis=(1, 2))
@@ -116,6 +128,56 @@ def shift_note(press: Press, reference: Press) -> str | None:
         f"capture {reference.folder}: the camera moved between them? The solve compares them pixel by pixel: capture "
         f"a new reference (undeformed dome) and solve against it"
     )
+
+
+def changed_blocks(ref: np.ndarray, img: np.ndarray, inner: np.ndarray, block: int) -> np.ndarray:
+    """The blocks a dent changed: more than a camera shift of :data:`SHIFT_ALLOWANCE` pixels explains.
+
+    Why: a cube's dent on the flat pad covers 62-75 % of the gel's pixels (its draping too), on the fingertip 6-13 %
+    in the image's brighter, steeper part; its face, moved along the axis, changes its shading smoothly, as a shift
+    would, so the Cauchy weights kept it and it pulled the fit by up to 1.4 px (q3's presses, s41-shiftcube). Its
+    changes pass 5 % in the log; a shift changes a block by its gradient times the shift (a few tenths of a percent
+    per pixel), and the noise of a block's log image is ~0.3 %.
+
+    Parameters
+    ----------
+    ref, img : (n, h, w) float -- :func:`log_blocks` of the undeformed capture's and the press's LED images.
+    inner : (h, w) bool -- the blocks the shift is measured on.
+    block : side, pixels, of the blocks.
+
+    Returns
+    -------
+    (h, w) bool -- the changed blocks among ``inner``, grown by :data:`SHIFT_CHANGE_GROW`.
+    """
+    change = img - ref
+    noise = np.maximum(block_noise(change, inner), SHIFT_NOISE_FLOOR)
+    # each LED's offset (an exposure change) is its most common change: the gel left undeformed changes alike, to
+    # within the noise, while a dent's change spreads (its median was the dent's where it covers most of the gel)
+    offset = [_most_common(c[inner], 2 * SHIFT_CHANGE_NOISE * n) for c, n in zip(change, noise)]
+    change = change - np.asarray(offset, np.float32)[:, None, None]
+    gy, gx = np.gradient(ref, axis=(1, 2))
+    allowance = SHIFT_ALLOWANCE / block  # in blocks: the gradients are per block
+    bound = allowance * np.hypot(gx, gy) + SHIFT_CHANGE_NOISE * noise[:, None, None]
+    changed = (np.abs(change) > bound).any(axis=0) & inner
+    return masks.dilate(changed, iterations=SHIFT_CHANGE_GROW) & inner
+
+
+def block_noise(change: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    """(n,) -- each image's noise in ``change`` (n, h, w): the spread of its differences between neighbouring blocks
+    over ``inner``, divided by sqrt 2 (a smooth change, a dent's or a shift's, hardly differs between neighbours;
+    the median of their absolute values ignores its edges)."""
+    pair = inner[:, 1:] & inner[:, :-1]
+    step = (change[:, :, 1:] - change[:, :, :-1])[:, pair]
+    step = step - np.median(step, axis=1, keepdims=True)
+    return 1.4826 * np.median(np.abs(step), axis=1) / np.sqrt(2)
+
+
+def _most_common(values: np.ndarray, width: float) -> float:
+    """The median of the most ``values`` (N,) that a window ``width`` wide holds."""
+    ordered = np.sort(values)
+    held = np.searchsorted(ordered, ordered + width, side="right") - np.arange(len(ordered))
+    first = int(np.argmax(held))
+    return float(np.median(ordered[first : first + held[first]]))
 
 
 def _centred(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
