@@ -10,6 +10,15 @@ ECC alignment followed the dent or the noise (shifts of 1-100 px on presses that
 fitted by Gauss-Newton (Lucas-Kanade) on the log images of a few LEDs, block-averaged, with a per-LED offset (an
 exposure change) and Cauchy weights (the dent's pixels disagree with any shift), measures 0.01-0.29 px on twin
 presses that did not move and 1.66 px on the 2 px one (the dent pulls the cube press's by -0.2 px).
+
+A dent over much of the gel is no outlier to the Cauchy weights, whose scale is the residual's median: a 5 mm cube on
+the flat pad displaces 62-75 % of its gel's pixels, on the fingertip 6-13 % in the image's bright, steep corner, and
+its face, moved along the axis, changes the shading smoothly, as a shift does. They pulled the measure by up to 1.42
+px (flat pad) and 1.25 px (fingertip): 7 of q3's 135 twin presses were warned "the camera moved", and a flat pad's
+cube press moved by 2 px measured 0.57 px, unwarned. So the blocks a dent changed are left out first
+(:func:`changed_blocks`: more than a 3 px shift explains, by 5 times the noise): the 135 presses in place measure
+0.00-0.43 px (median 0.08; before, 0.01-1.42, median 0.12), moved by 2 px 1.53-2.29 px on every design (before
+0.57-2.56), by 1 px 0.62-1.29 (benchmarks/RESULTS.md, s41-shiftcube).
 """
 
 from __future__ import annotations
