@@ -129,7 +129,10 @@ CAMERA_SHIFT_PX = 0.75
 camera moved: :mod:`nlipscalib.solver.camera_shift`). Why: the twin's presses that did not move measure 0.01-0.29 px
 (the dent's pull and the noise: sphere1, cube1, coin1 and six more against /tmp/keep/reference, the demo's three
 against theirs), its cube press moved by 2 px 1.66 px (2 px less the dent's pull, -0.2 px on the cube press in
-place); exact synthetic data measure 2.000 (benchmarks/RESULTS.md, s26-degen2)."""
+place); exact synthetic data measure 2.000 (benchmarks/RESULTS.md, s26-degen2). Since s41-shiftcube (the dent's
+blocks left out) the 135 presses of q3 (five designs; sphere, cube and screw; 640x480) measure 0.00-0.43 px in place
+(the flat pad's and fingertip's cube presses measured up to 1.42 and 1.25 px before: 7 warned) and 1.53-2.29 px moved
+by 2 px, 0.62-1.29 px by 1 px (a 1 px move may pass unwarned)."""
 NO_CONTACT_PEAK = 8.0
 """``--roi auto``: a press has no contact when no pixel's misfit reaches this many times its floor (the floor of
 :data:`CONTACT_MISFIT_FACTOR`): the press is then refused with "found no contact", not solved on the whole gel. Why:

@@ -10,6 +10,15 @@ ECC alignment followed the dent or the noise (shifts of 1-100 px on presses that
 fitted by Gauss-Newton (Lucas-Kanade) on the log images of a few LEDs, block-averaged, with a per-LED offset (an
 exposure change) and Cauchy weights (the dent's pixels disagree with any shift), measures 0.01-0.29 px on twin
 presses that did not move and 1.66 px on the 2 px one (the dent pulls the cube press's by -0.2 px).
+
+A dent over much of the gel is no outlier to the Cauchy weights, whose scale is the residual's median: a 5 mm cube on
+the flat pad displaces 62-75 % of its gel's pixels, on the fingertip 6-13 % in the image's bright, steep corner, and
+its face, moved along the axis, changes the shading smoothly, as a shift does. They pulled the measure by up to 1.42
+px (flat pad) and 1.25 px (fingertip): 7 of q3's 135 twin presses were warned "the camera moved", and a flat pad's
+cube press moved by 2 px measured 0.57 px, unwarned. So the blocks a dent changed are left out first
+(:func:`changed_blocks`: more than a 3 px shift explains, by 5 times the noise): the 135 presses in place measure
+0.00-0.43 px (median 0.08; before, 0.01-1.42, median 0.12), moved by 2 px 1.53-2.29 px on every design (before
+0.57-2.56), by 1 px 0.62-1.29 (benchmarks/RESULTS.md, s41-shiftcube).
 """
 
 from __future__ import annotations
@@ -36,6 +45,17 @@ SHIFT_LIT = 1e-3
 """Blocks whose image is below this (linear, full scale 1) under one of the LEDs are left out."""
 SHIFT_REWEIGHTS = 3
 """Weighted least-squares solves per step, each weighting the residual the previous one leaves."""
+SHIFT_ALLOWANCE = 3.0
+"""Pixels: a block whose log image changed more than a shift of this size explains (its gradient times it) by more
+than :data:`SHIFT_CHANGE_NOISE` times the noise, under any LED, is the dent's and left out (:func:`changed_blocks`)."""
+SHIFT_CHANGE_NOISE = 5.0
+"""Noise levels (the block images' noise, :func:`block_noise`) a block's change must pass beyond the shift's
+allowance to be the dent's."""
+SHIFT_NOISE_FLOOR = 1e-3
+"""The least noise (log, per block) :func:`changed_blocks` assumes: exact or 16-bit images hold almost none, and a
+most common change needs a window of some width."""
+SHIFT_CHANGE_GROW = 2
+"""Blocks the dent's changed blocks are grown by: its fringe, changed by less than the noise bound, goes with it."""
 
 
 def camera_shift(
@@ -67,6 +87,7 @@ def camera_shift(
     # away from the gel's outline and the image's border by more than a shift to be found, and lit by every LED: the
     # log's jump at an outline (or where an LED does not reach) is no shading to align
     inner = masks.erode(inner, iterations=SHIFT_MARGIN) & (ref > np.log(SHIFT_LIT)).all(axis=0)
+    inner &= ~changed_blocks(ref, img, inner, block)
     if inner.sum() < 100:
         return 0.0, 0.0
     gy, gx = np.gradient(ref, axis=(1, 2))
@@ -116,6 +137,56 @@ def shift_note(press: Press, reference: Press) -> str | None:
         f"capture {reference.folder}: the camera moved between them? The solve compares them pixel by pixel: capture "
         f"a new reference (undeformed dome) and solve against it"
     )
+
+
+def changed_blocks(ref: np.ndarray, img: np.ndarray, inner: np.ndarray, block: int) -> np.ndarray:
+    """The blocks a dent changed: more than a camera shift of :data:`SHIFT_ALLOWANCE` pixels explains.
+
+    Why: a cube's dent on the flat pad covers 62-75 % of the gel's pixels (its draping too), on the fingertip 6-13 %
+    in the image's brighter, steeper part; its face, moved along the axis, changes its shading smoothly, as a shift
+    would, so the Cauchy weights kept it and it pulled the fit by up to 1.4 px (q3's presses, s41-shiftcube). Its
+    changes pass 5 % in the log; a shift changes a block by its gradient times the shift (a few tenths of a percent
+    per pixel), and the noise of a block's log image is ~0.3 %.
+
+    Parameters
+    ----------
+    ref, img : (n, h, w) float -- :func:`log_blocks` of the undeformed capture's and the press's LED images.
+    inner : (h, w) bool -- the blocks the shift is measured on.
+    block : side, pixels, of the blocks.
+
+    Returns
+    -------
+    (h, w) bool -- the changed blocks among ``inner``, grown by :data:`SHIFT_CHANGE_GROW`.
+    """
+    change = img - ref
+    noise = np.maximum(block_noise(change, inner), SHIFT_NOISE_FLOOR)
+    # each LED's offset (an exposure change) is its most common change: the gel left undeformed changes alike, to
+    # within the noise, while a dent's change spreads (its median was the dent's where it covers most of the gel)
+    offset = [_most_common(c[inner], 2 * SHIFT_CHANGE_NOISE * n) for c, n in zip(change, noise)]
+    change = change - np.asarray(offset, np.float32)[:, None, None]
+    gy, gx = np.gradient(ref, axis=(1, 2))
+    allowance = SHIFT_ALLOWANCE / block  # in blocks: the gradients are per block
+    bound = allowance * np.hypot(gx, gy) + SHIFT_CHANGE_NOISE * noise[:, None, None]
+    changed = (np.abs(change) > bound).any(axis=0) & inner
+    return masks.dilate(changed, iterations=SHIFT_CHANGE_GROW) & inner
+
+
+def block_noise(change: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    """(n,) -- each image's noise in ``change`` (n, h, w): the spread of its differences between neighbouring blocks
+    over ``inner``, divided by sqrt 2 (a smooth change, a dent's or a shift's, hardly differs between neighbours;
+    the median of their absolute values ignores its edges)."""
+    pair = inner[:, 1:] & inner[:, :-1]
+    step = (change[:, :, 1:] - change[:, :, :-1])[:, pair]
+    step = step - np.median(step, axis=1, keepdims=True)
+    return 1.4826 * np.median(np.abs(step), axis=1) / np.sqrt(2)
+
+
+def _most_common(values: np.ndarray, width: float) -> float:
+    """The median of the most ``values`` (N,) that a window ``width`` wide holds."""
+    ordered = np.sort(values)
+    held = np.searchsorted(ordered, ordered + width, side="right") - np.arange(len(ordered))
+    first = int(np.argmax(held))
+    return float(np.median(ordered[first : first + held[first]]))
 
 
 def _centred(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
