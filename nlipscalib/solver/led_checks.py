@@ -62,6 +62,11 @@ or cycle), the order is kept and only warned about."""
 CHECK_PIXELS = 2000
 """Gel pixels the check samples, at least (every k-th in raster order): its statistics are medians and
 correlations over the gel, steady at this count (the verdicts above are the same at 10^4 pixels)."""
+OUTSIDE_PIXELS = CHECK_PIXELS
+""":func:`exposure_ratio` samples the gel outside the solve's box when at least this many gel pixels lie there (else
+the whole gel), :data:`CHECK_PIXELS` of them as on the whole gel: the one-bounce twin's 16-spp noise is ~5 % a pixel,
+and the 289 whole-gel samples outside the flat pad's 15 deg cube press's box read one LED's blue at 0.987, a
+correction; its ~35000 gel pixels there sampled 2000 strong read 0.995-1.005."""
 
 
 def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[str]:
@@ -1095,6 +1100,7 @@ def exposure_ratio(
     reference: Press,
     bands: Sequence[DarkBand | LaggedBand] = (),
     samples: tuple[np.ndarray, np.ndarray] | None = None,
+    outside: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """Each LED image's brightness against the undeformed capture's of the same LED, per channel: (L, 3) float64
     ratios (the median over the gel of the pixels' ratios), 1 where the two were taken alike; None without a
@@ -1102,18 +1108,23 @@ def exposure_ratio(
     (:func:`led_check_measured`'s), their samples left out of that LED's median (:func:`.dark_band_mask`): there
     the image holds no light of its LED (the twin's sphere press with LED 5's columns 0-209 from LED 4 measured
     LED 5 at 0.98, and the solve rescaled its image by it).
-    ``samples``: :func:`drift_samples` of the two, when taken already (None: taken here).
+    ``samples``: :func:`drift_samples` of the two with the same ``outside``, when taken already (None: taken here).
+    ``outside``: (H, W) bool, the pixels away from the contact (the gel outside the solve's box): the gel is sampled
+    there when at least :data:`OUTSIDE_PIXELS` of its pixels lie in it, else everywhere. Why: a contact that covers
+    most of the gel moves the median by its own shading; the twin's flat pad pressed 1 mm by a 5 mm cube (65 % of the
+    gel in contact) read LEDs 1 and 12 at 0.97-0.98 and 1.01 elsewhere, the solve rescaled their images by it and its
+    contact AAE went 0.31 -> 0.81 deg (0.30 with the median outside the box; benchmarks/RESULTS.md, s41-flatcube).
 
     Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
     own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
     balance per image: "--roi auto found no contact ... the LED model does not fit this sensor"). A press differs
     from the undeformed capture only in its contact, so the median over the gel of each LED's ratio is that LED's
     exposure change."""
-    samples = drift_samples(press, reference) if samples is None else samples
+    samples = drift_samples(press, reference, outside) if samples is None else samples
     if samples is None:
         return None
     now, before = samples
-    index = _drift_index(press)
+    index = _drift_index(press, outside)
     lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
     if bands:
         banded = sorted({band.index for band in bands})
@@ -1127,23 +1138,30 @@ def exposure_ratio(
     return ratio
 
 
-def _drift_index(press: Press) -> np.ndarray:
+def _drift_index(press: Press, outside: np.ndarray | None = None) -> np.ndarray:
     """(n,) int -- the flat gel pixels :func:`exposure_ratio` compares a press and its undeformed capture on: every
-    k-th of the press's surface, about :data:`CHECK_PIXELS`."""
-    index = np.flatnonzero(np.isfinite(press.reference.depth))
+    k-th of the press's surface, about :data:`CHECK_PIXELS`; of its part in ``outside`` ((H, W) bool) when that holds
+    at least :data:`OUTSIDE_PIXELS` of them."""
+    gel = np.isfinite(press.reference.depth)
+    if outside is not None and np.count_nonzero(away := gel & outside) >= OUTSIDE_PIXELS:
+        gel = away
+    index = np.flatnonzero(gel)
     return index[:: max(1, index.size // CHECK_PIXELS)]
 
 
-def drift_samples(press: Press, reference: Press) -> tuple[np.ndarray, np.ndarray] | None:
+def drift_samples(
+    press: Press, reference: Press, outside: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The press's and the undeformed capture's linear LED images at :func:`_drift_index`: two (L, n, 3) float64
     arrays, the capture's kept as its other results are (one decoding a session); None without a surface, or with
     other image sizes or LED counts. Taken once a solve, for :func:`reference_exchanges` and :func:`exposure_ratio`:
-    the capture's key (its images' digest) took ~50 ms of a 640x480 capture's each time on the loaded 2-core VM."""
+    the capture's key (its images' digest) took ~50 ms of a 640x480 capture's each time on the loaded 2-core VM.
+    ``outside``: the pixels to sample, as :func:`_drift_index`'s."""
     if press.reference is None or reference.camera.shape != press.camera.shape:
         return None
     if len(reference.leds) != len(press.leds):
         return None
-    index = _drift_index(press)
+    index = _drift_index(press, outside)
     now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
 
     def sampled() -> np.ndarray:
@@ -1180,8 +1198,9 @@ def led_gains(ratio: np.ndarray, misplaced: Sequence[int] = ()) -> np.ndarray | 
     Why: an LED that aged on its own (the red group 10 % dimmer on the twin's sphere and cube presses) scales its
     own images only; the model, with its calibrated Psi and the indirect light fitted on the undeformed capture,
     then misfits every pixel that LED lights: contact AAE 0.50 -> 4.8 deg, depth 0.49 mm off (benchmarks/RESULTS.md,
-    s28-dimref). Each ratio is a median over the gel, so the contact, a small part of it, does not move it. The
-    solve rescales those images (:func:`nlipscalib.core.capture.with_led_gains`)."""
+    s28-dimref). Each ratio is a median over the gel (outside the solve's box when it has one, :func:`exposure_ratio`),
+    so the contact does not move it. The solve rescales those images
+    (:func:`nlipscalib.core.capture.with_led_gains`)."""
     gains = ratio / reference_gain(ratio)
     gains[[int(i) for i in misplaced]] = 1.0
     if np.abs(np.log(gains)).max() <= np.log1p(tolerances.LED_GAIN_CORRECTION):

@@ -149,6 +149,17 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         return _checked_solve(press, kwargs)
 
 
+def _outside_box(roi: object, shape: tuple[int, int]) -> np.ndarray | None:
+    """(H, W) bool -- the pixels outside an explicit solve box ``roi`` = (x0, y0, w, h); None for "auto", None (the
+    whole gel) or anything :func:`.press_checks.check_roi` refuses later (the solve says so there)."""
+    if roi is None or isinstance(roi, str):
+        return None
+    try:
+        return ~box_mask(check_roi(roi, shape[1], shape[0]), shape)
+    except ShapeError:
+        return None
+
+
 def _check_indirect_light(press: Press, indirect: object) -> None:
     """ShapeError unless an ``indirect`` array is one float image per LED image of ``press``, (L, H, W, 3).
 
@@ -243,8 +254,12 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     left_out = sorted({*left_out, *repeated_out})
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
+        # measured away from the contact where the box says where it is: a contact over most of the gel moves the
+        # median by its own shading (the flat pad's cube press, benchmarks/RESULTS.md s41-flatcube)
+        outside = _outside_box(kwargs.get("roi"), press.camera.shape)
+        taken = samples if outside is None else None  # the whole gel's samples; those outside the box taken there
         # an LED's dark or lagged band (in the press or the undeformed capture) holds no light of it
-        ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark, samples)
+        ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark, taken, outside)
         if ratio is not None and repeated_out:  # another LED's light there: no verdict, the LED is left out below
             ratio[repeated_out] = 1.0
         gains = None if ratio is None else led_gains(ratio, misplaced)

@@ -786,3 +786,28 @@ def test_a_slope_asked_to_fit_a_power_law_is_not_told_from_images_that_follow_no
     assert response_slope(encoded, model, min_fit=fit) == pytest.approx(1 / 2.2, abs=1e-6)
     assert response_slope(unrelated, model, min_fit=fit) is None
     assert abs(response_slope(unrelated, model)) < 0.2
+
+
+def test_a_contact_over_most_of_the_gel_is_no_led_gain_when_the_solve_box_holds_it(tmp_path):
+    """``exposure_ratio`` measures on the gel outside the solve's box: a contact whose shading changes one LED's
+    image over most of the gel (here LED 1 at 0.9 inside a box of 60 % of the frame, as the twin's flat pad pressed
+    by a 5 mm cube moved LEDs 1 and 12 by 2-3 %) is no gain outside it, so the solve rescales no image; over the whole
+    gel the median took the contact's 0.9 for LED 1's gain (benchmarks/RESULTS.md, s41-flatcube)."""
+    reference = load_press(synth.make_press(tmp_path / "reference", "none"))
+    H, W = reference.camera.shape
+    box = (0, 0, int(W * 0.6), H)  # (x0, y0, w, h)
+
+    def shaded(lin):
+        lin = lin.copy()
+        lin[0, :, : box[2]] *= 0.9
+        return lin
+
+    press = _press(tmp_path, "wide", shaded)
+    outside = np.ones((H, W), bool)
+    outside[:, : box[2]] = False
+    assert np.allclose(exposure_ratio(press, reference)[0], 0.9, atol=0.01)  # the contact's, over the whole gel
+    ratio = exposure_ratio(press, reference, outside=outside)
+    assert np.allclose(ratio, 1.0, atol=0.005), ratio
+    rep = solve_press(press, indirect=reference, roi=box).report
+    assert rep["led_gains"] is None
+    assert solve_press(press, indirect=reference, roi=(0, 0, W, H)).report["led_gains"] is not None  # no outside
