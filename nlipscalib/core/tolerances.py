@@ -743,7 +743,7 @@ this fraction (LEDs aged on their own, or auto exposure). The one-bounce twin's 
 0.35 % (per LED and channel; nine 640x480 presses), 0.43 % on large or steep contacts (a 3 mm deep sphere, a 20 mm
 coin, 55-70 deg polar presses, two spheres; 320x240); one LED group 5 % dimmer: 0.95 (benchmarks/RESULTS.md,
 s28-ledgain). A contact over most of the gel: up to 3 % on the whole gel (the flat pad's 5 mm cube), 0.5 % outside the
-solve's box, where a box is given (benchmarks/RESULTS.md, s41-flatcube)."""
+solve's box, given or found by ``--roi auto`` (benchmarks/RESULTS.md, s41-flatcube, s41-autogain)."""
 REFERENCE_GAIN_DRIFT = 0.03
 """A press's LED images are warned of as brighter or dimmer than the undeformed capture's, every LED alike (LEDs aged,
 exposure or gain changed), when that gain (:func:`nlipscalib.solver.led_checks.reference_gain`, per channel) strays

@@ -1198,9 +1198,9 @@ def led_gains(ratio: np.ndarray, misplaced: Sequence[int] = ()) -> np.ndarray | 
     Why: an LED that aged on its own (the red group 10 % dimmer on the twin's sphere and cube presses) scales its
     own images only; the model, with its calibrated Psi and the indirect light fitted on the undeformed capture,
     then misfits every pixel that LED lights: contact AAE 0.50 -> 4.8 deg, depth 0.49 mm off (benchmarks/RESULTS.md,
-    s28-dimref). Each ratio is a median over the gel (outside the solve's box when it has one, :func:`exposure_ratio`),
-    so the contact does not move it. The solve rescales those images
-    (:func:`nlipscalib.core.capture.with_led_gains`)."""
+    s28-dimref). Each ratio is a median over the gel (outside the solve's box when it has one, given or
+    ``--roi auto``'s: :func:`exposure_ratio`, ``solver.press``), so the contact does not move it. The solve rescales
+    those images (:func:`nlipscalib.core.capture.with_led_gains`)."""
     gains = ratio / reference_gain(ratio)
     gains[[int(i) for i in misplaced]] = 1.0
     if np.abs(np.log(gains)).max() <= np.log1p(tolerances.LED_GAIN_CORRECTION):

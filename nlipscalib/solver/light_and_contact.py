@@ -283,11 +283,27 @@ def _contact(
     ``shading``: :func:`reference_shading` of the reference surface, deferred; ``dead_level``:
     ``SolverOptions.dead_led_level``, the fit's level of a dead LED; ``cache``: the press's side of the
     classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
-    classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if ref_capture is not None:
-        return classify(undeformed_images=_undeformed_images(ref_capture), undeformed_noise=True)
+        return undeformed_contact(press, leds, ref_capture, dead_level, cache)
+    classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if model is not None and model.enabled:
         # one LED's light at a time: the classification block-averages each, and never needs the 44 MB stack
         light = model.undeformed_light_per_led(press.camera.shape)
         return classify(undeformed_images=shading, undeformed_light=light)
     return classify(undeformed_images=shading, indirect=fixed_light)
+
+
+def undeformed_contact(
+    press: Press, leds: Leds, ref_capture: Press, dead_level: float, cache: dict | None = None
+) -> ContactMap:
+    """The contact classification of ``press`` against the undeformed capture ``ref_capture`` (its images' blur
+    kept under the capture's content key, :func:`_undeformed_images`); arguments as :func:`_contact`'s. The solve's,
+    and the one ``--roi auto`` measures the per-LED gains away from before the solve (``solver.press``)."""
+    return classify_contact(
+        press,
+        leds,
+        undeformed_images=_undeformed_images(ref_capture),
+        undeformed_noise=True,
+        dead_level=dead_level,
+        cache=cache,
+    )

@@ -86,7 +86,14 @@ from .led_checks import (
     reorder_note,
     reordered,
 )
-from .light_and_contact import REFIT_ALTERNATIONS, Sources, capture_key, light_and_contact, split_indirect
+from .light_and_contact import (
+    REFIT_ALTERNATIONS,
+    Sources,
+    capture_key,
+    light_and_contact,
+    split_indirect,
+    undeformed_contact,
+)
 from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
@@ -158,6 +165,28 @@ def _outside_box(roi: object, shape: tuple[int, int]) -> np.ndarray | None:
         return ~box_mask(check_roi(roi, shape[1], shape[0]), shape)
     except ShapeError:
         return None
+
+
+def _outside_auto_box(press: Press, kwargs: dict[str, Any]) -> np.ndarray | None:
+    """(H, W) bool -- the pixels outside the box ``--roi auto`` finds (:func:`_auto_box`) on ``press``'s images as
+    they are, against the undeformed capture ``kwargs["indirect"]``, for :func:`.led_checks.exposure_ratio`'s
+    ``outside`` (as an explicit box's, :func:`_outside_box`); None without a contact (the solve says so later).
+
+    Why: the auto box was found only after the per-LED gains were measured over the whole gel; the twin's flat pad
+    pressed 1 mm by a 5 mm cube (65-72 % of the gel in contact) read 7 of 12 LEDs 0.974-1.011 there, the solve
+    rescaled them and its contact AAE went 0.26 -> 0.89 deg (benchmarks/RESULTS.md, s41-autogain). The box, not the
+    misfitting pixels (:func:`.roi.contact_pixels`): the pad's flat contact barely misfits, and outside the dilated
+    misfit LED 1 still read 0.989. An LED's 1-3 % gain is far below a contact's misfit, so the box found here is the
+    solve's. Found only when the whole gel says an LED strays (:func:`.led_checks.led_gains`): a solve with no gain
+    to correct classifies its contact once, as before."""
+    leds = press.leds if kwargs.get("leds") is None else tuple(kwargs["leds"])
+    dead_level = (kwargs.get("options") or SolverOptions()).dead_led_level
+    cmap = undeformed_contact(press, leds, kwargs["indirect"], dead_level)
+    try:
+        _, _, (wide, _, _) = _auto_box(press, cmap, kwargs["indirect"].folder)
+    except CaptureError:
+        return None
+    return _outside_box(wide, press.camera.shape)
 
 
 def _check_indirect_light(press: Press, indirect: object) -> None:
@@ -263,6 +292,14 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         if ratio is not None and repeated_out:  # another LED's light there: no verdict, the LED is left out below
             ratio[repeated_out] = 1.0
         gains = None if ratio is None else led_gains(ratio, misplaced)
+        if gains is not None and kwargs.get("roi") == "auto":
+            # --roi auto finds its box after the gains: measured again outside the box the images show as they are
+            # (an LED's 1-3 % gain is far below a contact's misfit), as outside an explicit box (one code path)
+            outside = _outside_auto_box(press, kwargs)
+            ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark, None, outside)
+            if ratio is not None and repeated_out:
+                ratio[repeated_out] = 1.0
+            gains = None if ratio is None else led_gains(ratio, misplaced)
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
             led_notes.append(drifted)
@@ -866,17 +903,9 @@ def _region(
         return explicit_roi, ""
     if cmap is None:
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-    box, note = contact_box(
-        cmap,
-        press.camera.shape,
-        folder=press.folder,
-        reference=reference,
-        edge_model_error=edge_model_error,
-        flank=True,
-    )
+    box, note, (wide, before, after) = _auto_box(press, cmap, reference, edge_model_error)
     if note:
         log.warning("%s: %s", press.folder, note)
-    wide, before, after = widen_to_anchor(cmap, box, press.camera.shape)
     if wide != box:  # a deep press: the gel deforms well beyond the pixels that misfit most
         log.info(
             "%s: --roi auto widened its box from %s to %s: %.0f %% of it looked undeformed, too few to anchor the "
@@ -888,6 +917,22 @@ def _region(
             100 * after,
         )
     return wide, note
+
+
+def _auto_box(
+    press: Press,
+    cmap: ContactMap,
+    reference: os.PathLike | None = None,
+    edge_model_error: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> tuple[tuple[int, int, int, int], str, tuple[tuple[int, int, int, int], float, float]]:
+    """``--roi auto``'s box, unsaid: (the contact's box, its note, :func:`.anchoring.widen_to_anchor`'s (the box
+    solved, its undeformed share before and after)); arguments as :func:`_region`'s. CaptureError without a
+    contact (:func:`.contact_roi.contact_box`'s refusal)."""
+    shape = press.camera.shape
+    box, note = contact_box(
+        cmap, shape, folder=press.folder, reference=reference, edge_model_error=edge_model_error, flank=True
+    )
+    return box, note, widen_to_anchor(cmap, box, shape)
 
 
 class _Runner:

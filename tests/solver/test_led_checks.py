@@ -16,6 +16,7 @@ from nlipscalib.solver.led_checks import (
     exposure_ratio,
     led_check,
     led_check_measured,
+    led_gains,
     led_mismatch_notes,
     linearity_notes,
     response_slope,
@@ -811,3 +812,24 @@ def test_a_contact_over_most_of_the_gel_is_no_led_gain_when_the_solve_box_holds_
     rep = solve_press(press, indirect=reference, roi=box).report
     assert rep["led_gains"] is None
     assert solve_press(press, indirect=reference, roi=(0, 0, W, H)).report["led_gains"] is not None  # no outside
+
+
+def test_a_contact_over_most_of_the_gel_is_no_led_gain_with_the_auto_roi(tmp_path):
+    """``--roi auto`` finds its box on the images as they are before the per-LED gains are measured, which are then
+    taken outside it as with an explicit box: LED 1's image shaded to 0.9 over the right 62 % of the frame, around the
+    dent (a change over most of the gel, as the twin's flat pad pressed by a 5 mm cube moved 7 of 12 LEDs' whole-gel
+    medians by 1-3 %), is no gain outside the box, so no image is rescaled. Before, the whole gel's median took it for
+    LED 1's gain and the solve rescaled its image (benchmarks/RESULTS.md, s41-autogain)."""
+    reference = load_press(synth.make_press(tmp_path / "reference", "none"))
+
+    def shaded(lin):
+        lin = lin.copy()
+        lin[0, :, 36:] *= 0.9
+        return lin
+
+    press = _press(tmp_path, "wide", shaded)
+    assert led_gains(exposure_ratio(press, reference)) is not None  # the whole gel's median: a gain
+    rep = solve_press(press, indirect=reference, roi="auto", options=SolverOptions(max_iters=2)).report
+    x0, y0, w, h = rep["roi"]
+    assert w * h > 0.5 * press.camera.shape[0] * press.camera.shape[1]  # the box holds most of the gel
+    assert rep["led_gains"] is None
