@@ -45,7 +45,8 @@ def main() -> None:
         print(f"{ref}\t{folder.name}\t{line}", flush=True)
     if args.out:
         args.out.write_text(
-            "".join(f"{r}\t{n}\t" + "\t".join(f"{x:.3f},{y:.3f}" for x, y in s) + "\n" for r, n, s in rows)
+            "".join(f"{r}\t{n}\t" + "\t".join(f"{x:.3f},{y:.3f}" for x, y in s) + "\n" for r, n, s in rows),
+            encoding="utf-8",
         )
     print(f"camera_shift: median {1000 * np.median(seconds):.1f} ms a call ({len(seconds)} calls)", file=sys.stderr)
     for ref in refs:
