@@ -404,10 +404,7 @@ def disk_leds(leds_file: str | None) -> tuple[tuple[Led, ...], float]:
     from ..core.ledfile import read_led_file
 
     if leds_file is None:
-        raise ConfigError(
-            "--led-model disks needs --leds FILE, an LED file from `nlips calibrate-leds` (its disks), or the "
-            "capture's own LEDs (no --leds)"
-        )
+        raise ConfigError("--led-model disks needs --leds FILE, an LED file from `nlips calibrate-leds` (its disks)")
     led_file = read_led_file(leds_file)
     if not led_file.emitters:
         raise ConfigError(
