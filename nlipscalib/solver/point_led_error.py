@@ -82,7 +82,7 @@ def point_led_spread(points: np.ndarray, normals: np.ndarray, leds: Leds, radius
 
     On the shipped designs' undeformed gel with their 3.6 mm LEDs (1000 samples): hemisphere 0.0072, fingertip
     0.0096, oblate 0.0135, flat pad 0.0145, capsule 0.0149 (the flat pad's gel 8 mm from the LEDs, lit at grazing
-    angles; s42-flatauto, docs/experiments/RESULTS.md). 15-50 ms for 1000 points and 12 LEDs.
+    angles; s42-flatauto, docs/experiments/RESULTS.md). 7-8 ms of CPU for 1000 points and 12 LEDs.
 
     Parameters
     ----------
