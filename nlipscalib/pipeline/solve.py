@@ -519,9 +519,9 @@ def hint_design_disks(press: Press, settings: SolveSettings) -> None:
     if spread > tolerances.POINT_LED_SPREAD_FOR_DISKS:
         log.warning(
             "%s: its design's %.1f mm LEDs, solved as points, miss their own light unevenly over this gel (by %.1f %% "
-            "rms, above %.1f %%): solve with --led-model disks (the capture's LEDs as disks; the twin's flat pad: "
-            "contact AAE 0.89 -> 0.24 deg), or calibrate them (nlips calibrate-leds REFERENCE --out leds.json, then "
-            "--leds leds.json --led-model disks)",
+            "rms, above %.1f %%): model them as disks, `nlips solve --led-model disks` (the twin's flat pad: contact "
+            "AAE 0.89 -> 0.24 deg), or calibrate them, `nlips calibrate-leds REFERENCE --out leds.json`, then --leds "
+            "leds.json --led-model disks (`nlips calibrate` too)",
             press.folder,
             diameter,
             100 * spread,
