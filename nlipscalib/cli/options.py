@@ -43,7 +43,9 @@ def add_led_model(parser: argparse.ArgumentParser) -> None:
         default="points",
         help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
         "disks: ~1.1x the solve's CPU; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
-        "where points misplace the whole gel's depth by up to 0.1 mm)",
+        "where points misplace the whole gel's depth by up to 0.1 mm); without --leds FILE (solve only): the "
+        "capture's own LEDs as disks of the size its design declares (the flat pad, oblate and capsule designs, "
+        "whose gel their light reaches at grazing angles: the flat pad's cube press 0.89 -> 0.24 deg)",
     )
 
 

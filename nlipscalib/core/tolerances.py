@@ -313,6 +313,19 @@ cup about 3.6 mm across (the twin's default ``[led_package]``), whose light the 
 the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wall at the image border (every press
 with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits
 against 2,464; s27-shapes2). Not read from the capture: the press format does not describe the LED package."""
+POINT_LED_SPREAD_FOR_DISKS = 0.012
+"""``nlips solve`` with the capture's own LEDs (no ``--leds`` file) as points, on a design that declares its LEDs' size
+(``leds.emitter_diameter``): where the point LEDs miss the disks' light over the gel by more than this spread
+(:func:`nlipscalib.solver.point_led_error.point_led_spread`, the std of log(disk / point)), the solve says to model
+them as disks (``--led-model disks``) or to calibrate them (:func:`nlipscalib.pipeline.solve.hint_design_disks`).
+Why: the flat pad (0.0145) and the oblate dome (0.0135) lose most to points: the twin's flat cube pressed 1 mm at
+polar 25 deg, contact AAE 0.889 deg with the design's point LEDs, 0.238 as disks (0.262 with LEDs calibrated as
+points); oblate 0.437 -> 0.298. The hemisphere (0.0072) is left alone: there the disks gain 0.012 deg on its cube
+press but lose 0.017-0.041 on its sphere (fingertip 0.0096: 0.663 -> 0.602 on a cube; s42-flatauto,
+docs/experiments/RESULTS.md)."""
+POINT_LED_SPREAD_LIT = 0.05
+""":func:`nlipscalib.solver.point_led_error.point_led_spread` uses the gel an LED lights above this share of its median
+shading: at grazing light the ratio of two near-zero shadings is noise, not the model's error."""
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:

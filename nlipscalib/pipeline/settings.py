@@ -45,6 +45,9 @@ class SolveSettings:
     """Solver backend: "numpy" or "torch"."""
     solver_keywords: tuple[tuple[str, object], ...] = ()
     """Further keyword arguments of solver.solve_press (name, value), e.g. dent_interreflection."""
+    design_disks: bool = False
+    """``--led-model disks`` without an LED file: each press's own LEDs solved as disks of the size its sensor design
+    declares (``leds.emitter_diameter``), set per press by :func:`for_press` (its ``led_radius`` is then recorded)."""
 
     def describe(self) -> dict:
         """JSON-able record of the settings (paths as given; values that decide the result)."""
@@ -78,7 +81,8 @@ def make_settings(
 
     ``led_model`` "disks": the LED file's fitted disk emitters and their radius are solve_press's ``emitters`` and
     ``led_radius`` (recorded in ``solver_keywords``), the NLiPs solves' and the indirect term's LEDs; its point LEDs
-    stay ``leds`` (the ``--roi auto`` edge's point-LED misfit)."""
+    stay ``leds`` (the ``--roi auto`` edge's point-LED misfit). Without an LED file (the capture's own LEDs, a
+    subset of them too) they are the capture's LEDs as disks of its design's size, per press (:func:`for_press`)."""
     from ..solver import SolverOptions
 
     if options is None:
@@ -90,7 +94,8 @@ def make_settings(
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
     if led_model not in ("points", "disks"):
         raise ConfigError(f"led_model must be 'points' or 'disks', got {led_model!r}")
-    if led_model == "disks":  # the disks are the NLiPs solves', the indirect term's and the contact map's LEDs
+    design_disks = led_model == "disks" and leds_file is None and led_values is None
+    if led_model == "disks" and not design_disks:  # the NLiPs solves', the indirect term's and the contact map's LEDs
         emitters, radius = disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
@@ -107,6 +112,34 @@ def make_settings(
         options=options,
         backend=backend,
         solver_keywords=tuple(sorted(_solver_keywords(solver_keywords).items())),
+        design_disks=design_disks,
+    )
+
+
+def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
+    """``settings`` for one press: with :attr:`SolveSettings.design_disks`, its own LEDs as disks of the diameter its
+    sensor design declares (``core.sensor.capture_led_diameter``: meta.json's design or the twin's scene), recorded
+    as solve_press's ``led_radius``; otherwise ``settings`` unchanged.
+
+    Raises
+    ------
+    ConfigError
+        The capture's design declares no LED size, naming its meta.json and what to do instead.
+    """
+    if not settings.design_disks:
+        return settings
+    from ..core.press_meta import META_FILE, read_meta
+    from ..core.sensor import capture_led_diameter
+
+    diameter, source = capture_led_diameter(read_meta(folder), str(Path(folder) / META_FILE))
+    if not diameter > 0:
+        raise ConfigError(
+            f"{source}: --led-model disks without --leds needs the LEDs' size: give --leds FILE from `nlips "
+            "calibrate-leds REFERENCE --led-diameter MM`, or solve with --led-model points"
+        )
+    keywords = {**dict(settings.solver_keywords), "led_radius": diameter / 2, "emitters": None}
+    return dataclasses.replace(
+        settings, design_disks=False, solver_keywords=tuple(sorted(_solver_keywords(keywords).items()))
     )
 
 

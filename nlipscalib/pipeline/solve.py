@@ -34,7 +34,7 @@ from ..core.reconstruction import (
 from ..progress import PRESS_SUMMARY
 from .provenance import capture_identity, make_provenance, run_record
 from .reuse import _claim, _clean_interrupted, _hold, _leftovers, _published_since, _reuse, _wait_for_release
-from .settings import SolveSettings, check_fits_capture, make_settings
+from .settings import SolveSettings, check_fits_capture, for_press, make_settings
 from .status import BUSY, FAILED, NO_CONTACT, SOLVED
 from .workers import _solve_in_processes
 
@@ -202,11 +202,10 @@ def _hold_presses(held: contextlib.ExitStack, folders: list[Path], settings: Sol
     this run made stays its own until the run ends (another run of other settings reaching the press later, once
     it was released, replaced it while this run went on). Returns the failed status of each press a live run of
     other settings holds."""
-    record = run_record(settings)
     refused = {}
     for folder in folders:
-        try:
-            held.enter_context(_hold(folder, result_dir(folder, None), record))
+        try:  # each press's own settings: --led-model disks without an LED file takes its design's LED size
+            held.enter_context(_hold(folder, result_dir(folder, None), run_record(for_press(folder, settings))))
         except NlipsError as exc:
             log.error("%s", _failure_line(folder, exc))
             refused[folder] = f"{FAILED}: {exc}"
@@ -257,6 +256,7 @@ def solve_one(
     from ..report import figure_level
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
+    settings = for_press(folder, settings)  # the press's design's LED size for --led-model disks without a file
     check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = result_dir(folder, out)
     # a dataset, a press, a user's folder or an NLiPsNet result at --out is never replaced by a result
@@ -423,6 +423,7 @@ def _solve_and_save(
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     hint_disk_leds(folder, settings, result.report, press.led_images.shape[-3] * press.led_images.shape[-2])
+    hint_design_disks(press, settings)
     return result
 
 
@@ -477,6 +478,54 @@ def hint_disk_leds(folder: Path, settings: SolveSettings, report: dict, frame_pi
             folder,
             100 * share,
             settings.leds_file,
+        )
+
+
+DESIGN_DISK_SAMPLES = 1000
+"""Gel pixels :func:`hint_design_disks` judges the point LEDs on (the spread within 0.0002 of 4000 samples' on the
+shipped designs, at a quarter of the CPU)."""
+
+
+def hint_design_disks(press: Press, settings: SolveSettings) -> None:
+    """Say once per sensor design when a solve with the capture's own LEDs as points (no ``--leds`` file) is on a
+    design whose declared LED size the point model misses unevenly over the gel (:func:`nlipscalib.solver.
+    point_led_error.point_led_spread` above :data:`~nlipscalib.core.tolerances.POINT_LED_SPREAD_FOR_DISKS`: the
+    shipped flat pad, oblate and capsule designs): ``--led-model disks`` or calibrated LEDs are the better model,
+    which a user could not know to ask for (the flat pad's cube press 0.89 deg as points, 0.24 as disks)."""
+    import numpy as np
+
+    from ..core import tolerances
+    from ..core.camera import depth_to_points
+    from ..core.sensor import capture_led_diameter
+    from ..solver.point_led_error import point_led_spread
+
+    if settings.leds is not None or "led_radius" in dict(settings.solver_keywords):
+        return
+    try:
+        diameter, _ = capture_led_diameter(press.meta)
+    except ConfigError:  # a bad recorded size: `--led-model disks` names it; no hint here
+        return
+    key = f"design disks {diameter} {[led.to_dict() for led in press.leds]}"
+    if not diameter > 0 or not said_once.first_time(key):
+        return
+    ref = press.reference
+    if ref is None:  # no undeformed surface to judge on
+        return
+    rows, cols = np.nonzero(np.isfinite(ref.depth))
+    step = max(1, rows.size // DESIGN_DISK_SAMPLES)  # every k-th gel pixel: deterministic, ~1000 samples
+    rows, cols = rows[::step], cols[::step]
+    points = depth_to_points(ref.depth[rows, cols], press.camera.rays[rows, cols])
+    spread = point_led_spread(points, ref.normals[rows, cols], press.leds, diameter / 2)
+    if spread > tolerances.POINT_LED_SPREAD_FOR_DISKS:
+        log.warning(
+            "%s: its design's %.1f mm LEDs, solved as points, miss their own light unevenly over this gel (by %.1f %% "
+            "rms, above %.1f %%): model them as disks, `nlips solve --led-model disks` (the twin's flat pad: contact "
+            "AAE 0.89 -> 0.24 deg), or calibrate them, `nlips calibrate-leds REFERENCE --out leds.json`, then --leds "
+            "leds.json --led-model disks (`nlips calibrate` too)",
+            press.folder,
+            diameter,
+            100 * spread,
+            100 * tolerances.POINT_LED_SPREAD_FOR_DISKS,
         )
 
 
