@@ -12,7 +12,11 @@ frames (`nlips live --out DIR`: DIR/frame_NNNNNN.npz) record no input and are no
 writes the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
-by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table.
+by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table. NLiPsNet
+results say whether their model learnt from the capture (report.json `trained_on`, compared by content: a press of
+the same name in another dataset is unseen): the table then has a `data` column (train, validation, unseen) and the
+mean and pooled figures of the seen presses (trained or validated on) and the unseen ones apart, named again in a
+line below it; results of a model trained before 2026-12-07 are scored together, said once.
 """
 
 from __future__ import annotations
