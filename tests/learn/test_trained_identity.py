@@ -9,6 +9,7 @@ import json
 import logging
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,6 +109,35 @@ def test_a_kept_re_run_reads_no_sample_file_and_one_of_an_older_dataset_reads_th
         _refuse_reading(patched)
         with pytest.raises(AssertionError, match="samples read"):
             train(built, TINY, out, exclude=[HELD], progress=False, reuse=True)
+
+
+def test_a_kept_cli_re_run_loads_the_model_once_and_reads_no_sample(built, tmp_path, monkeypatch, capsys):
+    """It was loaded twice: once to check it and its MODEL.onnx whole, then again for its digest and record
+    (~0.1 s of a 640x480 model)."""
+    from nlipscalib.learn import model as model_module
+
+    model = tmp_path / "net.pt"
+    args = [
+        "train",
+        str(built),
+        "--out",
+        str(model),
+        "--hidden",
+        "8",
+        "--dropout",
+        "0",
+        "--epochs",
+        "2",
+        "--no-progress",
+    ]
+    assert main(args) == 0
+    loaded, load = [], model_module.load_model
+    monkeypatch.setattr(model_module, "load_model", lambda path: loaded.append(Path(path)) or load(path))
+    _refuse_reading(monkeypatch)
+    capsys.readouterr()
+    assert main(args) == 0
+    assert ": reused, trained before" in capsys.readouterr().err
+    assert loaded == [model]
 
 
 @pytest.mark.parametrize("spoil", ["changed", "replaced", "cut"])
