@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         presses, method = _targets(Path(args.path), args.method)
         pairs = [(folder, None) for folder in presses]
     rows, unsolved, damaged, outdated = [], [], [], []
-    seen: dict[str, str | None] = {}  # each scored press's result's `trained_on` (learn.seen): None when not told
+    seen: dict[str, str | None] = {}  # each scored NLiPsNet result's `trained_on` (learn.seen): None when not told
     for folder, out in pairs:
         rec = _load(folder, method, single=len(pairs) == 1, out=out)
         stale = None if rec is None or isinstance(rec, str) or out else _stale(folder, method)
@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
                 damaged.append((folder.name, str(exc)))
                 continue
             rows.append((folder.name, scores[args.region]))
-            seen[folder.name] = _trained_on(rec.report)
+            if rec.report.get("method") == "nlipsnet":  # a network's result: it may say whether it learnt from it
+                seen[folder.name] = _trained_on(rec.report)
     if not rows and not damaged and not outdated:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet "
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     if rows:  # stderr: what was scored; stdout: the table alone (the command's product, for scripts)
         say(f"scoring {_scored(Path(args.path), pairs, method, args.result)}")
     _print(rows, seen)
-    if rows and (line := _seen_line(rows, seen, method)):
+    if rows and (line := _seen_line(rows, seen)):
         say(line, warning=not any(seen.values()))
     scored = {name for name, _ in rows}
     if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
@@ -702,16 +703,17 @@ def _split_by_seen(rows: list[tuple[str, dict]], told: dict[str, str]) -> dict[s
     }
 
 
-def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None], method: str) -> str | None:
+def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None]) -> str | None:
     """The line below the table that names the seen and unseen presses' scores, or that says once that the results
-    do not tell them apart; None for results that never tell (NLiPs's, a lookup table's) and record nothing.
+    do not tell them apart; None without an NLiPsNet result among them (``seen``: NLiPsNet's results alone; NLiPs's
+    and a lookup table's never tell).
 
     Why: the paper scores NLiPsNet on presses like those it learnt from and on others apart; a model file records
     the presses it learnt from by name alone before 2026-12-07, so eval could not tell a trained press from another
     of the same name in another dataset, and a user who kept presses out to test on saw one table of both."""
     told = {name: verdict for name, verdict in seen.items() if verdict}
     if not told:
-        if method != "nlipsnet":
+        if not seen:
             return None
         return (
             "seen and unseen presses not told apart: the results record no `trained_on` (inferred by a model or an "
