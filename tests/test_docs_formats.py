@@ -372,7 +372,7 @@ def test_files_from_older_versions_names_the_format_versions_each_reader_reads()
         "- **Calibration datasets**", "- **LED files**"
     )
     read = {"Captures": press_meta.READ_VERSIONS, "Calibration datasets": (dataset.FORMAT_VERSION,)}
-    read["Models"] = (model.MODEL_VERSION,)
+    read["Models"] = model.MODEL_READ_VERSIONS
     for kind, versions in read.items():
         (said,) = re.findall(rf"- \*\*{kind}\*\* \(([^)]*)\)", section)
         assert {int(n) for n in re.findall(r"\d+", said)} == set(versions), kind

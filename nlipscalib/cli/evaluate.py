@@ -12,7 +12,11 @@ frames (`nlips live --out DIR`: DIR/frame_NNNNNN.npz) record no input and are no
 writes the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
-by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table.
+by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table. NLiPsNet
+results say whether their model learnt from the capture (report.json `trained_on`, compared by content: a press of
+the same name in another dataset is unseen): the table then has a `data` column (train, validation, unseen) and the
+mean and pooled figures of the seen presses (trained or validated on) and the unseen ones apart, named again in a
+line below it; results of a model trained before 2026-12-07 are scored together, said once.
 """
 
 from __future__ import annotations
@@ -91,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         presses, method = _targets(Path(args.path), args.method)
         pairs = [(folder, None) for folder in presses]
     rows, unsolved, damaged, outdated = [], [], [], []
+    seen: dict[str, str | None] = {}  # each scored NLiPsNet result's `trained_on` (learn.seen): None when not told
     for folder, out in pairs:
         rec = _load(folder, method, single=len(pairs) == 1, out=out)
         stale = None if rec is None or isinstance(rec, str) or out else _stale(folder, method)
@@ -113,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
                 damaged.append((folder.name, str(exc)))
                 continue
             rows.append((folder.name, scores[args.region]))
+            if rec.report.get("method") == "nlipsnet":  # a network's result: it may say whether it learnt from it
+                seen[folder.name] = _trained_on(rec.report)
     if not rows and not damaged and not outdated:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet "
@@ -124,7 +131,9 @@ def run(args: argparse.Namespace) -> int:
 
     if rows:  # stderr: what was scored; stdout: the table alone (the command's product, for scripts)
         say(f"scoring {_scored(Path(args.path), pairs, method, args.result)}")
-    _print(rows)
+    _print(rows, seen)
+    if rows and (line := _seen_line(rows, seen)):
+        say(line, warning=not any(seen.values()))
     scored = {name for name, _ in rows}
     if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
         shown = ", ".join(older[:3]) + (f" and {len(older) - 3} more" if len(older) > 3 else "")
@@ -643,20 +652,85 @@ def _scored(path: Path, pairs: list, method: str, result: str | None) -> str:
     return str(path / "*" / method)
 
 
-def _print(rows: list[tuple[str, dict]]) -> None:
-    """stdout: the table of scores, a press a line (and their mean and pooled figures), its header first."""
+def _print(rows: list[tuple[str, dict]], seen: dict[str, str | None] | None = None) -> None:
+    """stdout: the table of scores, a press a line (and their mean and pooled figures), its header first.
+
+    ``seen``: each press's result's ``trained_on`` (:mod:`nlipscalib.learn.seen`; None: not told). When any is told,
+    a ``data`` column gives it ("train", "validation", "unseen", "?") and the mean and pooled figures follow for the
+    seen presses (trained or validated on) and the unseen ones apart (``mean seen``, ``pooled seen``, ...)."""
     import numpy as np
 
     if not rows:
         return
-    print(f"{'press':<24} {'pixels':>8} {'AAE(deg)':>9} {'MabsE':>8} {'RMSE(mm)':>9}")
+    told = {name: verdict for name, verdict in (seen or {}).items() if verdict}
+    data = f" {'data':<10}" if told else ""
+    print(f"{'press':<24}{data} {'pixels':>8} {'AAE(deg)':>9} {'MabsE':>8} {'RMSE(mm)':>9}")
+
+    def line(name: str, s: dict, verdict: str = "", pixels: bool = True) -> str:
+        count = f"{s['pixels']:>8d}" if pixels else f"{'':>8}"
+        column = f" {verdict:<10}" if told else ""
+        return f"{name:<24}{column} {count} {s['aae_deg']:>9.3f} {s['mabse']:>8.4f} {s['depth_rmse_mm']:>9.4f}"
+
     for name, s in rows:
-        print(f"{name:<24} {s['pixels']:>8d} {s['aae_deg']:>9.3f} {s['mabse']:>8.4f} {s['depth_rmse_mm']:>9.4f}")
-    if len(rows) > 1:
-        mean = {k: float(np.nanmean([s[k] for _, s in rows])) for k in ("aae_deg", "mabse", "depth_rmse_mm")}
-        print(f"{'mean':<24} {'':>8} {mean['aae_deg']:>9.3f} {mean['mabse']:>8.4f} {mean['depth_rmse_mm']:>9.4f}")
-        p = pooled([s for _, s in rows])
-        print(f"{'pooled':<24} {p['pixels']:>8d} {p['aae_deg']:>9.3f} {p['mabse']:>8.4f} {p['depth_rmse_mm']:>9.4f}")
+        print(line(name, s, told.get(name, "?")))
+    groups = {"": rows}
+    if told and len(rows) > 1:
+        groups |= {f" {group}": part for group, part in _split_by_seen(rows, told).items() if part}
+    for group, part in groups.items():
+        if len(rows) > 1:
+            mean = {k: float(np.nanmean([s[k] for _, s in part])) for k in ("aae_deg", "mabse", "depth_rmse_mm")}
+            print(line(f"mean{group}", mean, pixels=False))
+            print(line(f"pooled{group}", pooled([s for _, s in part])))
+
+
+def _trained_on(report: dict) -> str | None:
+    """A result's ``trained_on`` (:func:`nlipscalib.learn.seen.trained_on`'s verdict, recorded by `nlips infer`), or
+    None when it records none (its model, or the nlipscalib that inferred it, is of before 2026-12-07; an image
+    frame's result; NLiPs's)."""
+    from ..learn.seen import SEEN, TRAINED_ON_KEY, UNSEEN
+
+    verdict = report.get(TRAINED_ON_KEY) if isinstance(report, dict) else None
+    return verdict if verdict in (*SEEN, UNSEEN) else None
+
+
+def _split_by_seen(rows: list[tuple[str, dict]], told: dict[str, str]) -> dict[str, list[tuple[str, dict]]]:
+    """``rows`` as {"seen": ..., "unseen": ...} by their results' verdicts (``told``); rows not told are in neither."""
+    from ..learn.seen import SEEN, UNSEEN
+
+    return {
+        "seen": [row for row in rows if told.get(row[0]) in SEEN],
+        "unseen": [row for row in rows if told.get(row[0]) == UNSEEN],
+    }
+
+
+def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None]) -> str | None:
+    """The line below the table that names the seen and unseen presses' scores, or that says once that the results
+    do not tell them apart; None without an NLiPsNet result among them (``seen``: NLiPsNet's results alone; NLiPs's
+    and a lookup table's never tell).
+
+    Why: the paper scores NLiPsNet on presses like those it learnt from and on others apart; a model file records
+    the presses it learnt from by name alone before 2026-12-07, so eval could not tell a trained press from another
+    of the same name in another dataset, and a user who kept presses out to test on saw one table of both."""
+    told = {name: verdict for name, verdict in seen.items() if verdict}
+    if not told:
+        if not seen:
+            return None
+        return (
+            "seen and unseen presses not told apart: the results record no `trained_on` (inferred by a model or an "
+            "nlipscalib before 2026-12-07, which record no captures the model learnt from; `nlips train` and `nlips "
+            "infer` again record it): scored together"
+        )
+    parts = []
+    for group, part in _split_by_seen(rows, told).items():
+        if not part:
+            parts.append(f"{group}: none")
+            continue
+        p = pooled([s for _, s in part])
+        parts.append(f"{group}: {len(part)} press(es), pooled AAE {p['aae_deg']:.3f} deg over {p['pixels']} pixels")
+    untold = [name for name, _ in rows if name not in told]
+    if untold:
+        parts.append(f"not told ({', '.join(untold[:3])}{' ...' if len(untold) > 3 else ''}): in neither")
+    return "; ".join(parts) + " (seen: trained or validated on by the model that made the result)"
 
 
 def pooled(scores: list[dict]) -> dict:

@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
     from ..learn.onnx_fullframe import frame_graph_path
-    from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
+    from ..learn.publish import hold_training, model_stage, publish_model, reusable_model
     from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
     from ..progress import print_result, say
@@ -235,8 +235,10 @@ def run(args: argparse.Namespace) -> int:
     # this run's files are made in a folder of their own and published together, never a .pt beside another's .onnx
     with hold_training(out, training_run(cfg, data.folder, val, exclude)), model_stage(out) as stage:
         reuse = args.no_onnx or onnx_path.is_file()  # a finished model whose export is missing: exported again
-        with _quiet_sensor_record():  # the dataset's load said what its record lacks; the model holds that record
-            damaged = unusable_model_files(out, with_onnx=not args.no_onnx) if reuse else None
+        model, damaged = None, None
+        if reuse:  # the dataset's load said what its record lacks; the model holds that record
+            with _quiet_sensor_record():
+                model, damaged = reusable_model(out, with_onnx=not args.no_onnx)
         if damaged is not None:  # a file torn by a power cut, or cut short: made again, not reused as it is
             log.warning("%s; made again from its training's checkpoint", damaged)
             reuse = False
@@ -261,7 +263,9 @@ def run(args: argparse.Namespace) -> int:
             )
             from ..learn.model import load_model
 
-            reused = load_model(out)  # once, for both: its digest and its record
+            reused = (
+                model if model is not None else load_model(out)
+            )  # read once, before the reuse: its digest and its record
             _companions_made_current(out, args.no_onnx, reused.digest)
             if older := _older_model(out, reused.info):
                 log.warning("%s", older)
@@ -336,7 +340,7 @@ def _companions_made_current(out: Path, no_onnx: bool, digest: str) -> None:
     Why: a reuse published nothing, so a full-frame graph left stale by an earlier nlipscalib's retrain (which did
     not make it again) stayed beside the model, and `--backend auto` skipped it on every run; with ``--no-onnx`` a
     stale MODEL.onnx stayed alike (without it, a stale MODEL.onnx makes the run publish its files again:
-    ``learn.publish.unusable_model_files``). Cheap when both are current: ``digest`` (the model file's,
+    ``learn.publish.reusable_model``). Cheap when both are current: ``digest`` (the model file's,
     ``LoadedModel.digest``, of the model the reuse loads anyway) against a few hundred bytes of each export
     (``onnx_export.recorded_metadata``)."""
     from ..learn.exports import not_current

@@ -7,8 +7,8 @@ paper's MLP, its model file, training split by press), ``onnx_export``, ``infer`
 depth, points, on the CPU), ``fullframe`` (the same with every step on a GPU), ``cuda_graph`` (replaying a
 frame's kernels as one CUDA graph), ``integrate`` / ``integrate_torch`` (depth from normals on the dome
 along the camera's rays, in NumPy/SciPy and in PyTorch), ``lut`` (GelSight-style lookup-table baseline),
-``evaluate`` (scoring predictors on held-out presses), ``ply`` (point cloud export), ``watch`` (a stream's frames
-unlike the calibration's, warned about once).
+``evaluate`` (scoring predictors on held-out presses), ``seen`` (whether a model learnt from the capture it
+reads), ``ply`` (point cloud export), ``watch`` (a stream's frames unlike the calibration's, warned about once).
 Reads captures, and the sensor a model was calibrated for (``core.sensor_record``), through
 ``nlipscalib.core``; never imports ``solver`` or ``sim``.
 """

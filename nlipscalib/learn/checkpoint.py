@@ -165,9 +165,12 @@ def save_checkpoint(
     to: str | Path | None = None,
     *,
     sampling: object = None,
+    samples_key: str | None = None,
 ) -> None:
     """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``; ``sampling``: the
-    dataset's sampling record (index.json's), compared by :func:`check_sampling_record`."""
+    dataset's sampling record (index.json's), compared by :func:`check_sampling_record`; ``samples_key``: the
+    identity of its samples from the dataset's records (``CalibrationDataset.samples_key``, None when it has none
+    or its files differ from them), by which a re-run reuses the finished model without reading the samples."""
     import torch
 
     from ..core.atomic import NO_SPACE_ERRNOS, write_bytes
@@ -180,6 +183,7 @@ def save_checkpoint(
                 "code": training_code(),  # a model of other training code is trained again (published_state)
                 "options": _trajectory_options(cfg),  # so a refusal can say which option differs
                 "data_key": data_key,
+                "samples_key": samples_key,  # the dataset's records of these samples: a kept re-run reads none
                 "sampling": sampling,
                 "net": net.state_dict(),
                 "opt": opt.state_dict(),
@@ -228,9 +232,10 @@ def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
     return published_state(out, cfg, data_key) is not None
 
 
-def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
+def published_state(out: Path, cfg: TrainConfig, data_key: str | None, samples_key: str | None = None) -> dict | None:
     """The checkpoint published with the model at ``out`` (:func:`save_checkpoint`'s fields) when the model is there
-    and this run's (its options and samples), else None."""
+    and this run's (its options and samples: ``data_key``, the samples read, or ``samples_key``, their identity
+    from the dataset's records, which a checkpoint written before 2026-12-07 lacks), else None."""
     from .model import read_torch_file
 
     if not out.is_file():
@@ -239,8 +244,12 @@ def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
         ck = read_torch_file(checkpoint_path(out), "a training checkpoint")
     except Exception:  # missing or damaged: nothing says the model is this run's
         return None
-    mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
-    return ck if mine else None
+    if not (isinstance(ck, dict) and ck.get("key") == config_key(cfg)):
+        return None
+    same = (data_key is not None and ck.get("data_key") == data_key) or (
+        samples_key is not None and ck.get("samples_key") == samples_key
+    )
+    return ck if same else None
 
 
 def check_sampling_record(

@@ -37,7 +37,7 @@ import dataclasses
 import hashlib
 import json
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -332,13 +332,40 @@ def write_index(
         "reference": reference,
         "sampling": sampling_record(cfg),
         "sample_rules": dict(SAMPLE_RULES),
-        "presses": entries,
+        "presses": [_with_shard_record(folder, entry) for entry in entries],
     }
+    if (folder / SENSOR_FILE).is_file():
+        index[SENSOR_RECORD] = sample_file_record(folder / SENSOR_FILE)
     if reference_files is not None:
         index["reference_files"] = reference_files
     if tricolor is not None:
         index[TRICOLOR_KEY] = tricolor
     return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
+
+
+SHARD_RECORD = "shard"
+"""index.json entry key: the press's sample file as the build wrote it (:func:`sample_file_record`)."""
+SENSOR_RECORD = "sensor_file"
+"""index.json key: sensor.npz as the build wrote it (:func:`sample_file_record`)."""
+
+
+def sample_file_record(path: Path) -> dict:
+    """``{"bytes": N, "sha256": hex}`` of a sample file (a shard, sensor.npz): what index.json records of it, and
+    what :meth:`CalibrationDataset.samples_changed` compares the file with now.
+
+    Why a digest of the file's bytes, not of its arrays: it is read at disk speed with no inflating (Q2 full's
+    127 MB of shards: ~0.1 s of CPU, against ~2.1 s to inflate and check them), so `nlips train` tells a kept
+    re-run from the records (:meth:`CalibrationDataset.samples_key`) and checks the files against them cheaply."""
+    with path.open("rb") as f:
+        digest = hashlib.file_digest(f, "sha256").hexdigest()
+        size = f.tell()
+    return {"bytes": size, "sha256": digest}
+
+
+def _with_shard_record(folder: Path, entry: dict) -> dict:
+    """``entry`` with its shard's :func:`sample_file_record` (``shard``), when the shard is there."""
+    shard = folder / SHARD_DIR / f"{entry.get('name')}.npz"
+    return entry | {SHARD_RECORD: sample_file_record(shard)} if shard.is_file() else entry
 
 
 def torn_index(folder: Path, problem: str) -> str:
@@ -622,7 +649,7 @@ class _Build:
             kept = _kept_entry(shard, stamp, self.old.get(folder.name))
             if kept is not None:  # resumed, or made meanwhile by another build of this dataset
                 self.kept.append(folder.name)
-                return kept
+                return kept | _capture_identity(folder / self.result_dir)  # a shard made before it was recorded
             return self.make(folder, shard, stamp)
 
     def make(self, folder: Path, shard: Path, stamp: str) -> dict:
@@ -653,9 +680,37 @@ class _Build:
             "stamp": stamp,
             "files": files,
             TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
-        }
+        } | _capture_identity(folder / self.result_dir, rec.report)
         write_shard(shard, samples, entry)
         return entry
+
+
+CAPTURE_IDENTITY = "capture_identity"
+"""index.json entry key: the identity of the capture the press's labels were solved from (its NLiPs result's
+``provenance.inputs.press``, SHA-256 of meta.json, every image and reference.npz), which a model keeps for
+its training and validation presses (``info.captures``) and ``nlips infer`` compares with the capture it reads
+(report.json ``trained_on``)."""
+
+
+def _capture_identity(result: Path, report: dict | None = None) -> dict:
+    """``{"capture_identity": hex}`` from the NLiPs result ``result``'s report.json (``report``: read already), or
+    ``{}`` when it records none (a result saved outside the pipeline, or of an nlipscalib before 2026-12-06).
+
+    Why the recorded identity, not a hash of the press now: learn/ does not solve, and the pipeline that solved
+    the press hashed these files then (``pipeline.capture_identity``); a press changed since its solve is solved
+    again by `nlips calibrate` before it is sampled, and `nlips train` refuses one changed since its sampling
+    (:meth:`CalibrationDataset.changed_presses`)."""
+    if report is None:
+        from ..core.reconstruction import read_report
+
+        try:
+            report = read_report(result)
+        except CaptureError:
+            return {}
+    provenance = report.get("provenance")
+    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
+    identity = inputs.get("press") if isinstance(inputs, dict) else None
+    return {CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {}
 
 
 # ---------------------------------------------------------------------- holding the folder
@@ -965,6 +1020,16 @@ def _checked_entries(presses: object, path: Path) -> list[dict]:
     return presses
 
 
+def _is_file_record(record: object) -> bool:
+    """Whether ``record`` is a :func:`sample_file_record` (a hand-edited index.json may hold anything)."""
+    return (
+        isinstance(record, dict)
+        and isinstance(record.get("bytes"), int)
+        and isinstance(record.get("sha256"), str)
+        and len(record["sha256"]) == 64
+    )
+
+
 def _checked_smoothing(sampling: object, path: Path) -> tuple[float, float]:
     """index.json's ``sampling.smoothing_px`` and ``sampling.smoothing_colour``, checked (0 when the dataset predates
     the option): a bad value is named here, not by inference reading the model that carries it ("prefilter sigma
@@ -1117,6 +1182,50 @@ class CalibrationDataset:
                 why += self.remake
             changed[name] = f"{Path(folder) / first}: {why}"
         return changed
+
+    def samples_key(self, train: Sequence[str], val: Sequence[str]) -> str | None:
+        """The identity of the samples a training of presses ``train`` validated on ``val`` reads, from index.json's
+        records alone (ms, nothing inflated): 16 hex digits of SHA-256 over the sensor record, the sampling record,
+        sensor.npz's digest and each press's name and shard digest, in order (:func:`sample_file_record`); None when
+        index.json lacks a record (a dataset built before 2026-12-07). Equal keys mean equal training inputs while
+        the files are those recorded (:meth:`samples_changed`)."""
+        records = {e["name"]: e.get(SHARD_RECORD) for e in self.entries}
+        sensor = self.index.get(SENSOR_RECORD)
+        named = [*train, *val]
+        if not all(_is_file_record(r) for r in [sensor, *(records.get(n) for n in named)]):
+            return None
+        what = {
+            "sensor": self.index.get("sensor"),
+            "sampling": self.index.get("sampling"),
+            "sensor_file": sensor["sha256"],
+            "train": [[n, records[n]["sha256"]] for n in train],
+            "val": [[n, records[n]["sha256"]] for n in val],
+        }
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
+
+    def samples_changed(self, names: Iterable[str]) -> str | None:
+        """Why the sample files of presses ``names`` (and sensor.npz) are not those index.json records, in one line
+        naming the first file, or None: each file's size (a stat), then its SHA-256 (~0.1 s for Q2 full's 127 MB).
+
+        Why: a kept re-run of `nlips train` (:meth:`samples_key`) reads no sample; a file cut, replaced or changed
+        since the build wrote it would otherwise pass for the samples the model was trained on."""
+        paths = [(self.folder / SENSOR_FILE, self.index.get(SENSOR_RECORD))]
+        paths += [(self.folder / SHARD_DIR / f"{e['name']}.npz", e.get(SHARD_RECORD)) for e in self._named(names)]
+        for path, record in paths:
+            if not _is_file_record(record):
+                return f"{path}: index.json records no digest of it"
+            try:
+                size = path.stat().st_size
+            except OSError:
+                return f"{path}: missing"
+            if size != record["bytes"]:
+                return f"{path}: {size} bytes, {record['bytes']} when the dataset was built"
+            if sample_file_record(path)["sha256"] != record["sha256"]:
+                return f"{path}: its content differs from the digest index.json records (changed since it was written)"
+        return None
+
+    def _named(self, names: Iterable[str]) -> list[dict]:
+        return [self.entry(n) for n in names]
 
     def entry(self, name: str) -> dict:
         for e in self.entries:

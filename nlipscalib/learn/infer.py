@@ -711,8 +711,12 @@ def to_reconstruction(
         ``software_version``, ``settings`` and ``inputs``). Its ``inputs``, the identity of what it read
         (``{"press": capture identity}`` or ``{"frame": SHA-256 of the image file}``), is what ``nlips eval
         PRESS --result`` compares with PRESS. None: nothing recorded (eval then warns it cannot check).
+        A press's identity is also compared with the captures the model learnt from (:func:`.seen.trained_on`):
+        the report's ``trained_on`` ("train", "validation" or "unseen"; absent when it cannot tell), by which
+        ``nlips eval`` scores seen and unseen presses apart.
     """
     from ..core.reconstruction import Reconstruction
+    from .seen import TRAINED_ON_KEY, trained_on
 
     check_kind(frame, Frame, "frame", "a Frame (Predictor.predict's result)")
     check_kind(predictor, Predictor, "predictor", "the Predictor that made the frame")
@@ -720,6 +724,7 @@ def to_reconstruction(
     valid = predictor.valid
     H, W = valid.shape
     nan = np.full((H, W), np.nan, np.float32)
+    inputs = (provenance or {}).get("inputs")
     return Reconstruction(
         depth=np.where(valid, frame.depth, np.nan).astype(np.float32),
         points=np.where(valid[..., None], frame.points, np.nan).astype(np.float32),
@@ -744,6 +749,7 @@ def to_reconstruction(
             "changed_pixels": int(frame.changed.sum()),
             "seconds": frame.seconds,
         }
+        | ({TRAINED_ON_KEY: seen} if (seen := trained_on(predictor.model.info, inputs)) else {})
         | ({"provenance": dict(provenance)} if provenance else {}),
     )
 

@@ -41,7 +41,12 @@ if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``
     from .lut import LookupTable
 
 MODEL_FORMAT = "nlipscalib.nlipsnet"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+"""The version ``nlips train`` writes: 2 since 2026-12-07 (s42-trainid), whose ``info`` records the capture identities
+of the presses it learnt from (``captures``) and its samples' identity (``samples_key``); 1 lacks them."""
+MODEL_READ_VERSIONS = (1, 2)
+"""The versions :func:`load_model` reads: a version 1 file loads as before (``nlips infer`` then cannot tell a press
+it learnt from from another, and `nlips eval` says so)."""
 TABLE_FORMAT = "nlipscalib.lut"
 """The lookup-table baseline's model file (:mod:`.lut`, ``nlips lut``): this file's container, a table for weights."""
 TABLE_VERSION = 1
@@ -358,11 +363,11 @@ def load_model(path: str | Path) -> LoadedModel:
             f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r}, or {TABLE_FORMAT!r} for a lookup "
             "table)"
         )
-    if payload.get("format_version") != MODEL_VERSION:
+    if payload.get("format_version") not in MODEL_READ_VERSIONS or isinstance(payload.get("format_version"), bool):
         from ..core.formatfile import version_problem
 
         remake = "train it again (`nlips train`) on its calibration dataset"
-        raise CaptureError(version_problem(path, payload, (MODEL_VERSION,), remake))
+        raise CaptureError(version_problem(path, payload, MODEL_READ_VERSIONS, remake))
     for key in ("hidden", "dropout", "state_dict", "sensor", "reference", "info"):
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")

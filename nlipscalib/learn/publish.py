@@ -23,6 +23,7 @@ from .onnx_fullframe import FULL_FRAME_SUFFIX
 
 if TYPE_CHECKING:
     from ..core.claims import Owner
+    from .model import LoadedModel
     from .train import TrainResult
 
 log = logging.getLogger(__name__)
@@ -211,28 +212,30 @@ def clean_interrupted_writes(out: Path, *names: str) -> None:
             log.warning("%s: removed %s", gone, removed_leftover(gone))
 
 
-def unusable_model_files(out: str | Path, with_onnx: bool) -> str | None:
-    """Why the model at ``out`` (or, with ``with_onnx``, its ONNX export beside it, when there) cannot be reused as
-    it is, in one line naming the file; None when it can, or when there is no model there.
+def reusable_model(out: str | Path, with_onnx: bool) -> tuple[LoadedModel | None, str | None]:
+    """The model at ``out``, read in full and checked (None when there is none, or it cannot be reused as it is),
+    and why it cannot be reused as it is (the model, or with ``with_onnx`` its ONNX export beside it, when there),
+    in one line naming the file, or None.
 
     Why: a finished training is reused on the strength of the checkpoint published with its model
     (:func:`.checkpoint.published_state`), which says nothing of the model file itself. A model file or export
     left empty or cut short (a power cut soon after the files were published, before the disk had them; a copy
     interrupted) was reused as it was, "reused, trained before ...", exit 0, and only ``nlips infer`` found it
     damaged, each run of ``nlips train`` reusing it again. Read here, such a file is made again from the
-    checkpoint instead (no epoch trained again). The model is read in full (kilobytes to a few megabytes)."""
+    checkpoint instead (no epoch trained again). The model is read in full (kilobytes to a few megabytes), once:
+    the reuse takes its digest and record from it (it was read a second time, ~0.1 s of a kept re-run)."""
     from ..core.errors import CaptureError
     from .model import load_model
     from .onnx_export import check_export
 
     out = Path(out)
     if not out.is_file():
-        return None
+        return None, None
     onnx_path = out.with_suffix(".onnx")
     try:
         model = load_model(out)
         if with_onnx and onnx_path.is_file():
             check_export(onnx_path, model)
     except CaptureError as exc:
-        return str(exc)
-    return None
+        return None, str(exc)
+    return model, None

@@ -36,7 +36,7 @@ from .checkpoint import (
     resume,
     save_checkpoint,
 )
-from .dataset import INDEX_FILE, CalibrationDataset
+from .dataset import CAPTURE_IDENTITY, INDEX_FILE, CalibrationDataset
 from .model import (
     COLOUR_INPUTS,
     PAPER_DROPOUT,
@@ -51,6 +51,7 @@ from .model import (
 from .prefilter import check_sigma
 from .publish import clean_interrupted_writes
 from .resolution import INFO_KEY, calibrated_contacts
+from .seen import CAPTURES_KEY
 from .torch_device import check_device, torch_threads
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
@@ -380,6 +381,8 @@ def _train(
     import torch
 
     clean_interrupted_writes(out)
+    if reuse and (kept := _kept_by_records(dataset, cfg, val_names, exclude, out)) is not None:
+        return kept
     data = _training_data(dataset, cfg, val_names, exclude)
     data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
@@ -406,7 +409,10 @@ def _train(
         )
     # moved once (~2M samples x 12 floats: ~100 MB); the batches are indexed on the device, never copied per batch
     samples = [torch.from_numpy(a).to(device) for a in data.arrays()]
-    checkpoint = functools.partial(save_checkpoint, progress_path, cfg, data_key, net, opt, sched, sampling=sampling)
+    samples_key = _verified_samples_key(dataset, data)
+    checkpoint = functools.partial(
+        save_checkpoint, progress_path, cfg, data_key, net, opt, sched, sampling=sampling, samples_key=samples_key
+    )
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
     if best_state is None:  # every epoch's validation error NaN: no weights worth a model file
         raise ConfigError(
@@ -419,9 +425,52 @@ def _train(
         progress_path.unlink(missing_ok=True)
     net.to("cpu").load_state_dict(best_state)  # the model file's tensors and the ONNX export: on the CPU
     model_file = out if stage is None else Path(stage) / out.name
-    _save_trained(model_file, net, dataset, cfg, data, data_key, exclude, history, best)
+    _save_trained(model_file, net, dataset, cfg, data, (data_key, samples_key), exclude, history, best)
     progress_file = progress_path if stage else None
     return TrainResult(out, history, best["epoch"], data.train_names, data.val_names, progress_file)
+
+
+def _kept_by_records(
+    dataset: CalibrationDataset,
+    cfg: TrainConfig,
+    val_names: Collection[str] | None,
+    exclude: Collection[str],
+    out: Path,
+) -> TrainResult | None:
+    """The finished model at ``out`` reused without reading a sample (``TrainResult.reused``), when the checkpoint
+    published with it records this run's options, this training code and the samples' identity from the dataset's
+    records (:meth:`.dataset.CalibrationDataset.samples_key`), and the sample files are those recorded
+    (:meth:`~.dataset.CalibrationDataset.samples_changed`: sizes, then SHA-256); else None, and the samples are read
+    and compared as before (:func:`_train`).
+
+    Why: a kept re-run read and inflated every sample file to recognise its data (Q2 full's 127 MB: ~2.1 s of CPU);
+    hashing the files' bytes costs ~0.1 s. Synthetic samples (``synthetic_share``) are made from the press folders
+    and the reference capture, which the records do not cover: such a run reads its samples as before."""
+    if cfg.synthetic_share > 0 or not out.is_file():
+        return None
+    train_names, val_presses = _presses(dataset, cfg, val_names, exclude)
+    key = dataset.samples_key(train_names, val_presses)
+    if key is None:  # a dataset built before 2026-12-07: its samples are read
+        return None
+    done = published_state(out, cfg, None, key)
+    if done is None or not _finished(done, cfg) or other_code(done):  # trained, or said why by the reading path
+        return None
+    if why := dataset.samples_changed([*train_names, *val_presses]):
+        log.info("%s; its samples are read to tell whether %s was trained on them", why, out)
+        return None
+    return TrainResult(out, done["history"], done["best"]["epoch"], train_names, val_presses, reused=True)
+
+
+def _verified_samples_key(dataset: CalibrationDataset, data: _TrainingData) -> str | None:
+    """The samples' identity from the dataset's records (:meth:`.dataset.CalibrationDataset.samples_key`) when its
+    sample files are those recorded, else None (a checkpoint recording None is reused only by reading its samples).
+
+    Why checked here too: a training on a file changed since the build would otherwise record the build's key, and a
+    re-run after the file was put back would reuse a model trained on the changed one."""
+    key = dataset.samples_key(data.train_names, data.val_names)
+    if key is None or dataset.samples_changed([*data.train_names, *data.val_names]):
+        return None
+    return key
 
 
 def _data_key_under(
@@ -537,7 +586,7 @@ def _save_trained(
     dataset: CalibrationDataset,
     cfg: TrainConfig,
     data: _TrainingData,
-    data_key: str,
+    keys: tuple[str, str | None],
     exclude: Collection[str],
     history: list[dict],
     best: dict,
@@ -547,12 +596,19 @@ def _save_trained(
 
     The dataset is named by its folder's name and by the digest of the samples trained on (``data_key``,
     :func:`.checkpoint.data_key_of`), not by its absolute path: that changed the file's bytes (and its digest, which
-    ``nlips infer`` keys results on) when the data moved, and told whoever received the model the lab's folders."""
+    ``nlips infer`` keys results on) when the data moved, and told whoever received the model the lab's folders.
+    ``keys``: (``data_key``, ``samples_key``: :func:`_verified_samples_key`). The capture identities of its
+    training and validation presses (``captures``, index.json's ``capture_identity``: null where it records none)
+    let ``nlips infer`` tell a press it learnt from from another of the same name (report.json ``trained_on``)."""
+    data_key, samples_key = keys
+    names = data.train_names + data.val_names
     info = {
         "labels": cfg.labels,
         "config": jsonable_config(cfg),
         "dataset": dataset.folder.resolve().name,
         "samples_digest": data_key,
+        "samples_key": samples_key,
+        CAPTURES_KEY: {name: dataset.entry(name).get(CAPTURE_IDENTITY) for name in names},
         "capture": dataset.capture,  # what `nlips infer` names when a press was taken otherwise
         "train_presses": data.train_names,
         "val_presses": data.val_names,

@@ -16,12 +16,12 @@ from nlipscalib.learn.model import MODEL_FORMAT, load_model
 def test_a_model_file_of_a_newer_version_says_upgrade_or_train_again(tmp_path):
     torch = pytest.importorskip("torch")
     path = tmp_path / "model.pt"
-    torch.save({"format": MODEL_FORMAT, "format_version": 2}, path)
+    torch.save({"format": MODEL_FORMAT, "format_version": 3}, path)  # 2 since 2026-12-07 (s42-trainid): read
     with pytest.raises(CaptureError) as refused:
         load_model(path)
     assert str(refused.value) == (
-        f"{path}: format_version 2 is not supported (expected 1); written by a newer nlipscalib: upgrade nlipscalib "
-        "to read it, or train it again (`nlips train`) on its calibration dataset"
+        f"{path}: format_version 3 is not supported (expected 1 or 2); written by a newer nlipscalib: upgrade "
+        "nlipscalib to read it, or train it again (`nlips train`) on its calibration dataset"
     )
 
 
