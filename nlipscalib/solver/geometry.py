@@ -349,13 +349,14 @@ class _FixedPattern:
         thread while the other core waited, twice per assembly with R (benchmarks/RESULTS.md, s42-speed). The
         blocks are views of S's and R's arrays, which nothing writes: the same products, the same bits."""
         key = (threads.workers(), threads.PRODUCT_MIN_ROWS)
-        if getattr(self, "_blocks", None) is None or self._blocks[0] != key:  # (a map stored before it had them)
-            self._blocks = (key, threads.RowBlocks(self.S).blocks or [(slice(0, self.S.shape[0]), self.S)], None)
-        if per_row and self._blocks[2] is None:  # R's: cut at the first assembly with weights per row
-            by_rows = threads.RowBlocks(self.R).blocks or [(slice(0, self.R.shape[0]), self.R)]
-            self._blocks = (*self._blocks[:2], by_rows)
-        s_blocks, r_blocks = self._blocks[1], self._blocks[2]
-        return s_blocks, r_blocks if per_row else [None] * len(s_blocks)
+        # read and replaced whole, never read back: two threads assembling at once at worst cut the blocks twice
+        cut = getattr(self, "_blocks", None)  # (a map stored before it had them: none)
+        if cut is None or cut[0] != key:
+            cut = (key, threads.RowBlocks(self.S).blocks or [(slice(0, self.S.shape[0]), self.S)], None)
+        if per_row and cut[2] is None:  # R's: cut at the first assembly with weights per row
+            cut = (*cut[:2], threads.RowBlocks(self.R).blocks or [(slice(0, self.R.shape[0]), self.R)])
+        self._blocks = cut
+        return cut[1], cut[2] if per_row else [None] * len(cut[1])
 
     def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
         # the extras' weights after the blocks (absent ones 0: not added); by row blocks on both cores, the same bits
