@@ -489,14 +489,18 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
 
 
 def prefetch_press(folder: str | Path) -> None:
-    """Start decoding the dark and LED images of the press at ``folder`` on a thread of their own, for a
-    :func:`load_press` of it to come (:mod:`.prefetch`: it takes them when their bytes are the ones it reads), and
-    reading its reference.npz on another (:func:`_reference_ahead`). Nothing happens, and nothing is raised, when
-    ``folder``'s meta.json does not list its images: the load reports what is wrong."""
+    """Start decoding the dark, LED and tri-colour images of the press at ``folder`` on a thread of their own, in
+    that order, for a :func:`load_press` of it to come (:mod:`.prefetch`: it takes them when their bytes are the ones
+    it reads), and reading its reference.npz on another (:func:`_reference_ahead`). Nothing happens, and nothing is
+    raised, when ``folder``'s meta.json does not list its images: the load reports what is wrong.
+
+    The tri-colour image last: a solve reads it for its check against the LED images (:mod:`.tricolor_check`) after
+    the LED images' wait, and decoded there it took ~5-8 ms of the main thread while the other core idled
+    (benchmarks/RESULTS.md, s42-speed)."""
     try:
         meta = read_meta(folder)
         images = meta["images"]
-        names = [images["dark"], *images["leds"]]
+        names = [images["dark"], *images["leds"], images["tricolor"]]
     except (CaptureError, KeyError, TypeError):
         return
     if all(isinstance(name, str) for name in names):

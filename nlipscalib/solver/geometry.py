@@ -333,6 +333,30 @@ class _FixedPattern:
         self.R = sp.hstack([_row_gram_map(where, E) for E in extras], format="csr") if extras else None
         """The map from weights per row of the extras, concatenated, to H.data: used only where a weight is an
         array (the edge-preserving smoothness), so that scalar weights keep S's bits."""
+        self._blocks: tuple | None = None
+        """S's and R's row blocks (:meth:`_row_blocks`) with the thread count and row threshold they were cut for."""
+
+    def __getstate__(self) -> dict:
+        # the row blocks are views of S and R, cut for this process's threads: not stored (the disk cache)
+        return {**self.__dict__, "_blocks": None}
+
+    def _row_blocks(self, per_row: bool) -> tuple[list, list]:
+        """S's row blocks (:class:`threads.RowBlocks`, or S whole) and, ``per_row``, R's in the same rows (else
+        None per block), cut once per thread count, not at every assembly.
+
+        Why: S has a row per entry of H (~4 M at 640x480), and cutting a block makes an empty CSR matrix of its
+        rows (a zeroed row pointer) and the block's own row pointer: ~16 MB of fresh memory per block, on the main
+        thread while the other core waited, twice per assembly with R (benchmarks/RESULTS.md, s42-speed). The
+        blocks are views of S's and R's arrays, which nothing writes: the same products, the same bits."""
+        key = (threads.workers(), threads.PRODUCT_MIN_ROWS)
+        # read and replaced whole, never read back: two threads assembling at once at worst cut the blocks twice
+        cut = getattr(self, "_blocks", None)  # (a map stored before it had them: none)
+        if cut is None or cut[0] != key:
+            cut = (key, threads.RowBlocks(self.S).blocks or [(slice(0, self.S.shape[0]), self.S)], None)
+        if per_row and cut[2] is None:  # R's: cut at the first assembly with weights per row
+            cut = (*cut[:2], threads.RowBlocks(self.R).blocks or [(slice(0, self.R.shape[0]), self.R)])
+        self._blocks = cut
+        return cut[1], cut[2] if per_row else [None] * len(cut[1])
 
     def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
         # the extras' weights after the blocks (absent ones 0: not added); by row blocks on both cores, the same bits
@@ -369,12 +393,7 @@ class _FixedPattern:
             indices[entries] = self.indices[entries]
             return bool(data[entries].all())
 
-        whole = [(slice(0, len(data)), self.S)]
-        blocks = threads.RowBlocks(self.S).blocks or whole
-        if per_row:  # R's rows in the same blocks as S's (the same row count: the same chunks)
-            by_rows = threads.RowBlocks(self.R).blocks or [(slice(0, len(data)), self.R)]
-        else:
-            by_rows = [None] * len(blocks)
+        blocks, by_rows = self._row_blocks(per_row)  # R's rows in the same blocks as S's (the same row count)
         nonzero = threads.map_items(rows, list(zip(blocks, by_rows)))
         H = sp.csr_matrix(self.shape, dtype=np.float64)
         H.data, H.indices, H.indptr = data, indices, self.indptr.copy()

@@ -138,3 +138,27 @@ def test_a_broken_reference_read_ahead_is_reported_by_the_load(tmp_path):
     capture.prefetch_press(folder)  # nothing raised on its thread
     with pytest.raises(CaptureError, match="reference.npz"):
         load_press(folder)
+
+
+def test_a_prefetched_press_has_its_tricolour_image_decoded_ahead_after_the_led_images(tmp_path, monkeypatch):
+    """``nlips solve`` decodes the tri-colour image beside the solver's import too, after the LED images: the load
+    takes it from there (no decoding on the thread that reads it), the same array."""
+    import os
+    import threading
+
+    from nlipscalib.core import capture
+
+    folder = _press(tmp_path / "p")
+    expected = load_press(folder).tricolor
+    order = []
+    decode = stored_images.decode_png16
+    monkeypatch.setattr(
+        prefetch, "decode_png16", lambda data, key: order.append(os.path.basename(key)) or decode(data, key)
+    )
+    capture.prefetch_press(folder)
+    for thread in threading.enumerate():
+        if thread.name in ("prefetch-reference", "prefetch-images"):
+            thread.join()
+    assert order == ["dark.png", "led_01.png", "led_02.png", "led_03.png", "tricolor.png"]
+    _no_decoding(monkeypatch)
+    np.testing.assert_array_equal(load_press(folder).tricolor, expected)

@@ -301,3 +301,48 @@ def test_the_extras_weighted_per_row_are_their_weighted_grams(way, monkeypatch):
             assert abs(scalar - matrix.assemble(M, (0.3, 0.3))).max() < 1e-12
     finally:
         threads.set_workers(before)
+
+
+def test_the_fixed_pattern_cuts_its_row_blocks_once_per_thread_count(monkeypatch):
+    """S's (and R's) row blocks are cut at the first assembly and reused by the next ones of the same thread count
+    (a 640x480 map's cut is ~16 MB of fresh memory per block), cut again for another count, and left out of the
+    pickle the disk cache stores: every assembly the same bits as a fresh map's."""
+    import pickle
+
+    import scipy.sparse as sp
+
+    from nlipscalib.solver import threads
+
+    mask = np.ones((30, 40), bool)
+    mask[10:14, 12:20] = False
+    du, dv, _ = geometry.gradient_operators(mask)
+    n = int(mask.sum())
+    extras = [(du - dv).tocsr()]
+    M = np.random.default_rng(3).normal(size=(3, 3, n))
+    M = M + M.transpose(1, 0, 2)
+    ops = (sp.identity(n, format="csr"), du, dv)
+    weights = (np.linspace(0.1, 1.0, extras[0].shape[0]),)  # per row: R's blocks too
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    before = threads.workers()
+    try:
+        threads.set_workers(2)
+        matrix = geometry.NormalMatrix(ops, extras, fixed=True)
+        first = matrix.assemble(M, weights)
+        cut = matrix.fixed._blocks
+        assert len(cut[1]) == len(cut[2]) == 2  # S's and R's two row blocks
+        again = matrix.assemble(M, weights)
+        assert matrix.fixed._blocks is cut  # not cut again
+        stored = pickle.loads(pickle.dumps(matrix))
+        assert stored.fixed._blocks is None
+        fresh = geometry.NormalMatrix(ops, extras, fixed=True).assemble(M, weights)
+        for H in (again, stored.assemble(M, weights), matrix.assemble(M, (0.3,))):
+            assert not np.shares_memory(H.data, first.data)
+        for H in (again, stored.assemble(M, weights)):
+            for name in ("data", "indices", "indptr"):
+                np.testing.assert_array_equal(getattr(H, name), getattr(fresh, name))
+        threads.set_workers(1)
+        one = matrix.assemble(M, weights)
+        assert matrix.fixed._blocks[0][0] == 1 and len(matrix.fixed._blocks[1]) == 1  # cut again: S whole
+        np.testing.assert_array_equal(one.data, fresh.data)
+    finally:
+        threads.set_workers(before)
