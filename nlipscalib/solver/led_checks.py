@@ -1216,9 +1216,9 @@ def agreed_gains(whole: np.ndarray, away: np.ndarray | None) -> np.ndarray | Non
 
     Why: an LED that aged on its own scales its images everywhere, so both measures find it; a large contact moves
     them apart, each by its own shading: on the whole gel by its dent (the flat pad's cube: 7 LEDs 0.974-1.011,
-    s41-flatcube), outside the box by the light the dent takes from or sends to the rest of the gel (the twin's
-    30 mm sphere 3 mm deep over 41 % of the gel, 640x480: LEDs 1-2 0.988 outside its box, 0.996 over the whole gel:
-    the light its dent bounces onto the rest of the gel). Taking every LED's outside ratio (s41-autogain) rescaled
+    s41-flatcube), outside the box by the light the dent bounces onto the rest of the gel (the twin's 30 mm sphere
+    3 mm deep over 41 % of the gel, 640x480: LEDs 1-2 0.988 outside its box, 0.996 over the whole gel; both within
+    0.16 % without bounces). Taking every LED's outside ratio (s41-autogain) rescaled
     those two with an aged LED 8: contact AAE 1.08 deg, 0.80 now, 0.79 with LED 8's true gain alone
     (benchmarks/RESULTS.md, s42-autogain2)."""
     if away is None:
