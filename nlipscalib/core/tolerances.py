@@ -756,7 +756,11 @@ this fraction (LEDs aged on their own, or auto exposure). The one-bounce twin's 
 0.35 % (per LED and channel; nine 640x480 presses), 0.43 % on large or steep contacts (a 3 mm deep sphere, a 20 mm
 coin, 55-70 deg polar presses, two spheres; 320x240); one LED group 5 % dimmer: 0.95 (benchmarks/RESULTS.md,
 s28-ledgain). A contact over most of the gel: up to 3 % on the whole gel (the flat pad's 5 mm cube), 0.5 % outside the
-solve's box, given or found by ``--roi auto`` (benchmarks/RESULTS.md, s41-flatcube, s41-autogain)."""
+solve's box, given or found by ``--roi auto`` (benchmarks/RESULTS.md, s41-flatcube, s41-autogain). A large contact on
+the hemisphere (a 30 mm sphere, 16-22 mm flat cylinders over 41-54 % of the gel, 640x480): up to 1.4 % on the whole
+gel and 2.5 % outside ``--roi auto``'s box, each its own way (the dent's interreflection; within 0.16 % without
+bounces), so ``--roi auto`` rescales only the LEDs both find astray (:func:`~nlipscalib.solver.led_checks.agreed_gains`;
+benchmarks/RESULTS.md, s42-autogain2)."""
 REFERENCE_GAIN_DRIFT = 0.03
 """A press's LED images are warned of as brighter or dimmer than the undeformed capture's, every LED alike (LEDs aged,
 exposure or gain changed), when that gain (:func:`nlipscalib.solver.led_checks.reference_gain`, per channel) strays

@@ -1208,6 +1208,30 @@ def led_gains(ratio: np.ndarray, misplaced: Sequence[int] = ()) -> np.ndarray | 
     return gains
 
 
+def agreed_gains(whole: np.ndarray, away: np.ndarray | None) -> np.ndarray | None:
+    """(L, 3) float64 -- :func:`led_gains` ``away`` (measured on the gel outside the contact's box), kept for the LEDs
+    that both it and ``whole`` (the same LEDs' :func:`led_gains` over the whole gel) find stray beyond
+    :data:`~nlipscalib.core.tolerances.LED_GAIN_CORRECTION` the same way, 1 for the others; None when no LED is
+    both (or ``away`` is None: no gain found there).
+
+    Why: an LED that aged on its own scales its images everywhere, so both measures find it; a large contact moves
+    them apart, each by its own shading: on the whole gel by its dent (the flat pad's cube: 7 LEDs 0.974-1.011,
+    s41-flatcube), outside the box by the light the dent bounces onto the rest of the gel (the twin's 30 mm sphere
+    3 mm deep over 41 % of the gel, 640x480: LEDs 1-2 0.988 outside its box, 0.996 over the whole gel; both within
+    0.16 % without bounces). Taking every LED's outside ratio (s41-autogain) rescaled
+    those two with an aged LED 8: contact AAE 1.08 deg, 0.80 now, 0.79 with LED 8's true gain alone
+    (benchmarks/RESULTS.md, s42-autogain2)."""
+    if away is None:
+        return None
+    tol = np.log1p(tolerances.LED_GAIN_CORRECTION)
+    lw, la = np.log(whole), np.log(away)
+    both = ((lw > tol) & (la > tol)) | ((lw < -tol) & (la < -tol))
+    leds = both.any(axis=1)
+    if not leds.any():
+        return None
+    return np.where(leds[:, None], away, 1.0)
+
+
 def changed_leds(gains: np.ndarray) -> list[int]:
     """The LEDs (0-based) whose :func:`led_gains` stray beyond ``tolerances.LED_GAIN_CORRECTION``."""
     off = np.abs(np.log(gains)).max(axis=1) > np.log1p(tolerances.LED_GAIN_CORRECTION)

@@ -70,6 +70,7 @@ from .led_checks import (
     NOTHING_FOUND,
     ExchangedImages,
     LedFindings,
+    agreed_gains,
     dark_rows,
     drift_samples,
     exposure_drift_note,
@@ -294,12 +295,13 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         gains = None if ratio is None else led_gains(ratio, misplaced)
         if gains is not None and kwargs.get("roi") == "auto":
             # --roi auto finds its box after the gains: measured again outside the box the images show as they are
-            # (an LED's 1-3 % gain is far below a contact's misfit), as outside an explicit box (one code path)
+            # (an LED's 1-3 % gain is far below a contact's misfit), as outside an explicit box (one code path);
+            # rescaled where both measures agree (a large contact moves each by its own shading: agreed_gains)
             outside = _outside_auto_box(press, kwargs)
             ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark, None, outside)
             if ratio is not None and repeated_out:
                 ratio[repeated_out] = 1.0
-            gains = None if ratio is None else led_gains(ratio, misplaced)
+            gains = None if ratio is None else agreed_gains(gains, led_gains(ratio, misplaced))
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
             led_notes.append(drifted)

@@ -12,6 +12,7 @@ from nlipscalib.core.repeated_frames import LaggedBand
 from nlipscalib.solver import SolverOptions, solve_press
 from nlipscalib.solver.led_checks import (
     _samples,
+    agreed_gains,
     detected_order,
     exposure_ratio,
     led_check,
@@ -833,3 +834,22 @@ def test_a_contact_over_most_of_the_gel_is_no_led_gain_with_the_auto_roi(tmp_pat
     x0, y0, w, h = rep["roi"]
     assert w * h > 0.5 * press.camera.shape[0] * press.camera.shape[1]  # the box holds most of the gel
     assert rep["led_gains"] is None
+
+
+def test_only_leds_both_measures_find_astray_the_same_way_are_rescaled():
+    """Known answer of ``agreed_gains``: LED 1 strays on both (0.98, 0.985): rescaled by the outside's 0.985; LED 2 only
+    outside the box (0.985), LED 3 only on the whole gel (1.02), LED 4 both ways but apart (0.98 against 1.02), one
+    channel of LED 5 on both (0.97, 0.98): its whole LED by the outside's. The others as captured (1)."""
+    whole = np.ones((6, 3))
+    away = np.ones((6, 3))
+    whole[0], away[0] = 0.98, 0.985
+    whole[1], away[1] = 0.995, 0.985
+    whole[2], away[2] = 1.02, 1.005
+    whole[3], away[3] = 0.98, 1.02
+    whole[4, 2], away[4] = 0.97, [0.999, 1.0, 0.98]
+    gains = agreed_gains(whole, away)
+    expected = np.ones((6, 3))
+    expected[0], expected[4] = 0.985, [0.999, 1.0, 0.98]
+    assert np.array_equal(gains, expected)
+    assert agreed_gains(whole[1:4], away[1:4]) is None  # none stray on both the same way
+    assert agreed_gains(whole, None) is None  # no gain outside the box
