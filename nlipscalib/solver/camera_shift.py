@@ -31,14 +31,21 @@ from ..core import masks, tolerances
 from ..core.capture import Press
 from . import reuse
 
-SHIFT_LEDS = 4
+SHIFT_LEDS = 12
 """LED images the shift is measured on (every k-th of the capture's): each adds the same shift's evidence under
-another light, so a dent that mimics a shift under one LED does not under the others."""
+another light, so a dent that mimics a shift under one LED does not under the others. Why 12, not 4: a dent's broad
+change of the shading (its light spread over the gel) reads as a shift of up to 1-2 px along each LED's own direction,
+which the LEDs opposite cancel only in part; with 12 the largest error of a q3 cube press went 0.43 -> 0.33 px
+(s42-shift1px)."""
 SHIFT_BLOCK = 4
 """Side, pixels, of the blocks the images are averaged over first (at least 60 blocks along the short side): the
 noise averages out, and the linearised shift stays within its range (a 2 px shift is half a block)."""
 SHIFT_ITERATIONS = 2
-"""Gauss-Newton steps (each warps the press by the shift so far)."""
+"""Gauss-Newton steps per pass (each warps the press by the shift so far)."""
+SHIFT_PASSES = 2
+"""Passes of :func:`changed_blocks` and the fit: each after the first judges the press moved back by the shift so far,
+so the blocks a large shift changed by more than :data:`SHIFT_ALLOWANCE` explains come back (a 3 px move read 2.55-3.04
+px with one pass) and the fit restarts from the shift found (s42-shift1px)."""
 SHIFT_MARGIN = 3
 """Blocks left out along the gel's outline and the image's border (see :func:`camera_shift`)."""
 SHIFT_LIT = 1e-3
@@ -87,18 +94,23 @@ def camera_shift(
     # away from the gel's outline and the image's border by more than a shift to be found, and lit by every LED: the
     # log's jump at an outline (or where an LED does not reach) is no shading to align
     inner = masks.erode(inner, iterations=SHIFT_MARGIN) & (ref > np.log(SHIFT_LIT)).all(axis=0)
-    inner &= ~changed_blocks(ref, img, inner, block)
-    if inner.sum() < 100:
-        return 0.0, 0.0
-    gy, gx = np.gradient(ref, axis=(1, 2))
-    gx, gy = gx[:, inner], gy[:, inner]
-    rows, cols = np.mgrid[:h, :w].astype(np.float32)
     shift = np.zeros(2)
+    for _ in range(SHIFT_PASSES):
+        # the dent's blocks, judged on the press moved back by the shift so far: a shift's own change is not the dent's
+        kept = inner & ~changed_blocks(ref, _moved(img, shift), inner, block)
+        if kept.sum() < 100:
+            break
+        shift = _fit(ref, img, kept, shift)
+    return float(shift[0] * block), float(shift[1] * block)
+
+
+def _fit(ref: np.ndarray, img: np.ndarray, kept: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(2,) blocks -- Gauss-Newton from ``shift`` on the ``kept`` blocks of :func:`log_blocks` ``ref`` and ``img``."""
+    gy, gx = np.gradient(ref, axis=(1, 2))
+    gx, gy = gx[:, kept], gy[:, kept]
+    shift = np.array(shift, float)
     for _ in range(SHIFT_ITERATIONS):
-        moved = np.stack(
-            [cv2.remap(im, cols + np.float32(shift[0]), rows + np.float32(shift[1]), cv2.INTER_LINEAR) for im in img]
-        )
-        res = (moved - ref)[:, inner]
+        res = (_moved(img, shift) - ref)[:, kept]
         step, weight = np.zeros(2), np.ones_like(res)
         for _ in range(SHIFT_REWEIGHTS):  # weights of what the step leaves: the shift's own residual is not an outlier
             # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
@@ -111,7 +123,19 @@ def camera_shift(
             normal = np.array([[np.sum(wx * cx), np.sum(wx * cy)], [np.sum(wx * cy), np.sum(wy * cy)]])
             step = np.linalg.solve(normal, np.array([np.sum(wx * cr), np.sum(wy * cr)]))
         shift -= step
-    return float(shift[0] * block), float(shift[1] * block)
+    return shift
+
+
+def _moved(img: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(n, h, w) -- ``img`` sampled at x + ``shift`` (blocks): the press moved back by it."""
+    import cv2
+
+    if not shift.any():
+        return img
+    h, w = img.shape[1:]
+    rows, cols = np.mgrid[:h, :w].astype(np.float32)
+    x, y = cols + np.float32(shift[0]), rows + np.float32(shift[1])
+    return np.stack([cv2.remap(im, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for im in img])
 
 
 def shift_note(press: Press, reference: Press) -> str | None:
