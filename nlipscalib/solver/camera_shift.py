@@ -19,6 +19,17 @@ cube press moved by 2 px measured 0.57 px, unwarned. So the blocks a dent change
 (:func:`changed_blocks`: more than a 3 px shift explains, by 5 times the noise): the 135 presses in place measure
 0.00-0.43 px (median 0.08; before, 0.01-1.42, median 0.12), moved by 2 px 1.53-2.29 px on every design (before
 0.57-2.56), by 1 px 0.62-1.29 (benchmarks/RESULTS.md, s41-shiftcube).
+
+Moved by sub-pixel shifts (``cv2.warpAffine``), q3's cube presses still read up to 0.64 px off, for two reasons. A
+dent changes the shading outside its contact too (its light spread over the gel): under each LED that change reads
+as a shift of up to 1-2 px along the LED's own direction, which the LEDs opposite cancel only in part (leaving out
+the truth's contact grown by 32 px still left 0.2-0.3 px); more LEDs cancel it better. And a large move changes the
+steep blocks by more than :data:`SHIFT_ALLOWANCE` explains, so they went with the dent and a 3 px move read 2.46-3.27;
+a second pass judges the dent's blocks on the press moved back by the first pass's shift. With 6 LEDs and two passes
+the error is at most 0.38 px whatever the move (0.5-3 px), so ``tolerances.CAMERA_SHIFT_PX`` is 0.5 px. OpenCV's
+phase correlation (Hanning window) and ECC were measured again and dropped: a log-linear shading moved along its slope
+is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-200 px off per
+LED) and phase correlation follows the window and the dent (benchmarks/RESULTS.md, s42-shift1px).
 """
 
 from __future__ import annotations
@@ -31,11 +42,12 @@ from ..core import masks, tolerances
 from ..core.capture import Press
 from . import reuse
 
-SHIFT_LEDS = 12
+SHIFT_LEDS = 6
 """LED images the shift is measured on (every k-th of the capture's): each adds the same shift's evidence under
-another light, so a dent that mimics a shift under one LED does not under the others. Why 12, not 4: a dent's broad
-change of the shading (its light spread over the gel) reads as a shift of up to 1-2 px along each LED's own direction,
-which the LEDs opposite cancel only in part; with 12 the largest error of a q3 cube press went 0.43 -> 0.33 px
+another light, so a dent that mimics a shift under one LED does not under the others. Why 6, not 4: a dent's broad
+change of the shading outside its contact (its light spread over the gel) reads under each LED as a shift of up to
+1-2 px along that LED's own direction, which the LEDs opposite cancel only in part; on 30 of q3's hardest presses,
+with the second pass, the largest error was 0.49 px with 4 LEDs, 0.38 with 6, 0.34 with 12 at twice 6's cost
 (s42-shift1px)."""
 SHIFT_BLOCK = 4
 """Side, pixels, of the blocks the images are averaged over first (at least 60 blocks along the short side): the
@@ -112,13 +124,13 @@ def _fit(ref: np.ndarray, img: np.ndarray, kept: np.ndarray, shift: np.ndarray) 
     for _ in range(SHIFT_ITERATIONS):
         res = (_moved(img, shift) - ref)[:, kept]
         step, weight = np.zeros(2), np.ones_like(res)
+        # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
+        cx, cy, cr = _centred((gx, gy, res), weight)
         for _ in range(SHIFT_REWEIGHTS):  # weights of what the step leaves: the shift's own residual is not an outlier
-            # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
-            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
             left = cr - step[0] * cx - step[1] * cy
             scale = 1.4826 * float(np.median(np.abs(left))) + 1e-9
             weight = 1.0 / (1.0 + (left / (3.0 * scale)) ** 2)  # Cauchy: the dent's pixels count little
-            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
+            cx, cy, cr = _centred((gx, gy, res), weight)
             wx, wy = weight * cx, weight * cy
             normal = np.array([[np.sum(wx * cx), np.sum(wx * cy)], [np.sum(wx * cy), np.sum(wy * cy)]])
             step = np.linalg.solve(normal, np.array([np.sum(wx * cr), np.sum(wy * cr)]))
@@ -213,9 +225,10 @@ def _most_common(values: np.ndarray, width: float) -> float:
     return float(np.median(ordered[first : first + held[first]]))
 
 
-def _centred(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """(L, N) -- ``values`` less their ``weight``-ed mean over each row (each LED's pixels)."""
-    return values - (weight * values).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
+def _centred(values: tuple[np.ndarray, ...], weight: np.ndarray) -> list[np.ndarray]:
+    """Each of ``values`` (L, N) less its ``weight``-ed mean over each row (each LED's pixels)."""
+    total = weight.sum(1, keepdims=True)
+    return [v - (weight * v).sum(1, keepdims=True) / total for v in values]
 
 
 def log_blocks(stack: np.ndarray, block: int) -> np.ndarray:
