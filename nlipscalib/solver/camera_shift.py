@@ -28,7 +28,7 @@ steep blocks by more than :data:`SHIFT_ALLOWANCE` explains, so they went with th
 a second pass judges the dent's blocks on the press moved back by the first pass's shift. With 6 LEDs and two passes
 the error is at most 0.38 px whatever the move (0.5-3 px), so ``tolerances.CAMERA_SHIFT_PX`` is 0.5 px. OpenCV's
 phase correlation (Hanning window) and ECC were measured again and dropped: a log-linear shading moved along its slope
-is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-200 px off per
+is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-210 px off per
 LED) and phase correlation follows the window and the dent (benchmarks/RESULTS.md, s42-shift1px).
 """
 
