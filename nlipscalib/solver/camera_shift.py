@@ -56,8 +56,8 @@ SHIFT_ITERATIONS = 2
 """Gauss-Newton steps per pass (each warps the press by the shift so far)."""
 SHIFT_PASSES = 2
 """Passes of :func:`changed_blocks` and the fit: each after the first judges the press moved back by the shift so far,
-so the blocks a large shift changed by more than :data:`SHIFT_ALLOWANCE` explains come back (a 3 px move read 2.55-3.04
-px with one pass) and the fit restarts from the shift found (s42-shift1px)."""
+so the blocks a large shift changed by more than :data:`SHIFT_ALLOWANCE` explains come back (a 3 px move read 2.46-3.27
+px with one pass, 2.69-3.28 with two) and the fit restarts from the shift found (s42-shift1px)."""
 SHIFT_MARGIN = 3
 """Blocks left out along the gel's outline and the image's border (see :func:`camera_shift`)."""
 SHIFT_LIT = 1e-3
