@@ -130,8 +130,8 @@ def test_the_checks_find_a_stale_threshold():
     peak = f"{tolerances.NO_CONTACT_PEAK:g}"
     assert misquoted_messages(f"misfit is 4.7 times its floor, a contact's above {peak}, and no patch") == []
     assert misquoted_messages("misfit is 4.7 times its floor, a contact's\n  above 6, and no patch")
-    assert misquoted_values("(`tolerances.CAMERA_SHIFT_PX` 0.75 px)") == []
-    assert misquoted_values("(`tolerances.CAMERA_SHIFT_PX` 0.5 px)")
+    assert misquoted_values("(`tolerances.CAMERA_SHIFT_PX` 0.5 px)") == []
+    assert misquoted_values("(`tolerances.CAMERA_SHIFT_PX` 0.75 px)")
     assert misquoted_values("`tolerances.DARK_FRAME_OFFSET`, 0.5 % of full scale") == []
     assert misquoted_values("`tolerances.MAX_IMAGE_PIXELS`: 4096 x 4096") == []
     assert misquoted_values("`tolerances.MAX_IMAGE_PIXELS`: 4096 x 2048")

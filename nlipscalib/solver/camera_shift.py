@@ -19,6 +19,17 @@ cube press moved by 2 px measured 0.57 px, unwarned. So the blocks a dent change
 (:func:`changed_blocks`: more than a 3 px shift explains, by 5 times the noise): the 135 presses in place measure
 0.00-0.43 px (median 0.08; before, 0.01-1.42, median 0.12), moved by 2 px 1.53-2.29 px on every design (before
 0.57-2.56), by 1 px 0.62-1.29 (benchmarks/RESULTS.md, s41-shiftcube).
+
+Moved by sub-pixel shifts (``cv2.warpAffine``), q3's cube presses still read up to 0.64 px off, for two reasons. A
+dent changes the shading outside its contact too (its light spread over the gel): under each LED that change reads
+as a shift of up to 1-2 px along the LED's own direction, which the LEDs opposite cancel only in part (leaving out
+the truth's contact grown by 32 px still left 0.2-0.3 px); more LEDs cancel it better. And a large move changes the
+steep blocks by more than :data:`SHIFT_ALLOWANCE` explains, so they went with the dent and a 3 px move read 2.46-3.27;
+a second pass judges the dent's blocks on the press moved back by the first pass's shift. With 6 LEDs and two passes
+the error is at most 0.38 px whatever the move (0.5-3 px), so ``tolerances.CAMERA_SHIFT_PX`` is 0.5 px. OpenCV's
+phase correlation (Hanning window) and ECC were measured again and dropped: a log-linear shading moved along its slope
+is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-210 px off per
+LED) and phase correlation follows the window and the dent (benchmarks/RESULTS.md, s42-shift1px).
 """
 
 from __future__ import annotations
@@ -31,14 +42,22 @@ from ..core import masks, tolerances
 from ..core.capture import Press
 from . import reuse
 
-SHIFT_LEDS = 4
+SHIFT_LEDS = 6
 """LED images the shift is measured on (every k-th of the capture's): each adds the same shift's evidence under
-another light, so a dent that mimics a shift under one LED does not under the others."""
+another light, so a dent that mimics a shift under one LED does not under the others. Why 6, not 4: a dent's broad
+change of the shading outside its contact (its light spread over the gel) reads under each LED as a shift of up to
+1-2 px along that LED's own direction, which the LEDs opposite cancel only in part; on 30 of q3's hardest presses,
+with the second pass, the largest error was 0.49 px with 4 LEDs, 0.38 with 6, 0.34 with 12 at twice 6's cost
+(s42-shift1px)."""
 SHIFT_BLOCK = 4
 """Side, pixels, of the blocks the images are averaged over first (at least 60 blocks along the short side): the
 noise averages out, and the linearised shift stays within its range (a 2 px shift is half a block)."""
 SHIFT_ITERATIONS = 2
-"""Gauss-Newton steps (each warps the press by the shift so far)."""
+"""Gauss-Newton steps per pass (each warps the press by the shift so far)."""
+SHIFT_PASSES = 2
+"""Passes of :func:`changed_blocks` and the fit: each after the first judges the press moved back by the shift so far,
+so the blocks a large shift changed by more than :data:`SHIFT_ALLOWANCE` explains come back (a 3 px move read 2.46-3.27
+px with one pass, 2.69-3.28 with two) and the fit restarts from the shift found (s42-shift1px)."""
 SHIFT_MARGIN = 3
 """Blocks left out along the gel's outline and the image's border (see :func:`camera_shift`)."""
 SHIFT_LIT = 1e-3
@@ -87,31 +106,48 @@ def camera_shift(
     # away from the gel's outline and the image's border by more than a shift to be found, and lit by every LED: the
     # log's jump at an outline (or where an LED does not reach) is no shading to align
     inner = masks.erode(inner, iterations=SHIFT_MARGIN) & (ref > np.log(SHIFT_LIT)).all(axis=0)
-    inner &= ~changed_blocks(ref, img, inner, block)
-    if inner.sum() < 100:
-        return 0.0, 0.0
-    gy, gx = np.gradient(ref, axis=(1, 2))
-    gx, gy = gx[:, inner], gy[:, inner]
-    rows, cols = np.mgrid[:h, :w].astype(np.float32)
     shift = np.zeros(2)
+    for _ in range(SHIFT_PASSES):
+        # the dent's blocks, judged on the press moved back by the shift so far: a shift's own change is not the dent's
+        kept = inner & ~changed_blocks(ref, _moved(img, shift), inner, block)
+        if kept.sum() < 100:
+            break
+        shift = _fit(ref, img, kept, shift)
+    return float(shift[0] * block), float(shift[1] * block)
+
+
+def _fit(ref: np.ndarray, img: np.ndarray, kept: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(2,) blocks -- Gauss-Newton from ``shift`` on the ``kept`` blocks of :func:`log_blocks` ``ref`` and ``img``."""
+    gy, gx = np.gradient(ref, axis=(1, 2))
+    gx, gy = gx[:, kept], gy[:, kept]
+    shift = np.array(shift, float)
     for _ in range(SHIFT_ITERATIONS):
-        moved = np.stack(
-            [cv2.remap(im, cols + np.float32(shift[0]), rows + np.float32(shift[1]), cv2.INTER_LINEAR) for im in img]
-        )
-        res = (moved - ref)[:, inner]
+        res = (_moved(img, shift) - ref)[:, kept]
         step, weight = np.zeros(2), np.ones_like(res)
+        # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
+        cx, cy, cr = _centred((gx, gy, res), weight)
         for _ in range(SHIFT_REWEIGHTS):  # weights of what the step leaves: the shift's own residual is not an outlier
-            # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
-            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
             left = cr - step[0] * cx - step[1] * cy
             scale = 1.4826 * float(np.median(np.abs(left))) + 1e-9
             weight = 1.0 / (1.0 + (left / (3.0 * scale)) ** 2)  # Cauchy: the dent's pixels count little
-            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
+            cx, cy, cr = _centred((gx, gy, res), weight)
             wx, wy = weight * cx, weight * cy
             normal = np.array([[np.sum(wx * cx), np.sum(wx * cy)], [np.sum(wx * cy), np.sum(wy * cy)]])
             step = np.linalg.solve(normal, np.array([np.sum(wx * cr), np.sum(wy * cr)]))
         shift -= step
-    return float(shift[0] * block), float(shift[1] * block)
+    return shift
+
+
+def _moved(img: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(n, h, w) -- ``img`` sampled at x + ``shift`` (blocks): the press moved back by it."""
+    import cv2
+
+    if not shift.any():
+        return img
+    h, w = img.shape[1:]
+    rows, cols = np.mgrid[:h, :w].astype(np.float32)
+    x, y = cols + np.float32(shift[0]), rows + np.float32(shift[1])
+    return np.stack([cv2.remap(im, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for im in img])
 
 
 def shift_note(press: Press, reference: Press) -> str | None:
@@ -189,9 +225,10 @@ def _most_common(values: np.ndarray, width: float) -> float:
     return float(np.median(ordered[first : first + held[first]]))
 
 
-def _centred(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """(L, N) -- ``values`` less their ``weight``-ed mean over each row (each LED's pixels)."""
-    return values - (weight * values).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
+def _centred(values: tuple[np.ndarray, ...], weight: np.ndarray) -> list[np.ndarray]:
+    """Each of ``values`` (L, N) less its ``weight``-ed mean over each row (each LED's pixels)."""
+    total = weight.sum(1, keepdims=True)
+    return [v - (weight * v).sum(1, keepdims=True) / total for v in values]
 
 
 def log_blocks(stack: np.ndarray, block: int) -> np.ndarray:
