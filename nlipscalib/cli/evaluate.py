@@ -16,8 +16,8 @@ by other nlipscalib code (an earlier version) are scored as they are and named i
 and lookup-table results say whether their model learnt from the capture (report.json `trained_on`, compared by
 content: a press of the same name in another dataset is unseen): the table then has a `data` column (train,
 validation, unseen) and the mean and pooled figures of the seen presses (trained or validated on) and the unseen ones
-apart, named again in a line below it; results of a model trained (a table fitted) before 2026-12-07, or of an image
-frame, are scored together, said once.
+apart, named again in a line below it; results of a model trained before 2026-12-07 (a table fitted before
+s42-lutseen), or of an image frame, are scored together, said once.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ MAKES = {
 """The command that writes each method's result, for the "no result yet" errors (``{path}``: the folder given)."""
 LEARNT = {"nlipsnet": "`nlips train`", "lut": "`nlips lut`"}
 """The methods whose results may say whether their model learnt from the capture (report.json ``trained_on``), and
-the command that makes such a model anew (a network trained, a table fitted, before 2026-12-07 records none)."""
+the command that makes such a model anew (a network trained before 2026-12-07, a table fitted before s42-lutseen,
+records none)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -721,7 +722,8 @@ def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None], method
             return None
         return (
             "seen and unseen presses not told apart: the results record no `trained_on` (an image frame's, or "
-            "inferred by a model or an nlipscalib before 2026-12-07, which record no captures the model learnt from; "
+            "inferred by an nlipscalib before 2026-12-07 or a model that records no captures it learnt from: a network "
+            "trained before 2026-12-07, a table fitted before s42-lutseen, a dataset that records none; "
             f"{LEARNT.get(method, LEARNT['nlipsnet'])} and `nlips infer` again record it): scored together"
         )
     parts = []
