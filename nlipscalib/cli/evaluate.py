@@ -13,10 +13,11 @@ writes the core reconstruction format (docs/formats.md), so they are scored alik
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
 by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table. NLiPsNet
-results say whether their model learnt from the capture (report.json `trained_on`, compared by content: a press of
-the same name in another dataset is unseen): the table then has a `data` column (train, validation, unseen) and the
-mean and pooled figures of the seen presses (trained or validated on) and the unseen ones apart, named again in a
-line below it; results of a model trained before 2026-12-07 are scored together, said once.
+and lookup-table results say whether their model learnt from the capture (report.json `trained_on`, compared by
+content: a press of the same name in another dataset is unseen): the table then has a `data` column (train,
+validation, unseen) and the mean and pooled figures of the seen presses (trained or validated on) and the unseen ones
+apart, named again in a line below it; results of a model trained before 2026-12-07 (a table fitted before
+s42-lutseen), or of an image frame, are scored together, said once.
 """
 
 from __future__ import annotations
@@ -43,6 +44,10 @@ MAKES = {
     "lut": "`nlips infer TABLE.pt {path}` with a lookup table from `nlips lut`",
 }
 """The command that writes each method's result, for the "no result yet" errors (``{path}``: the folder given)."""
+LEARNT = {"nlipsnet": "`nlips train`", "lut": "`nlips lut`"}
+"""The methods whose results may say whether their model learnt from the capture (report.json ``trained_on``), and
+the command that makes such a model anew (a network trained before 2026-12-07, a table fitted before s42-lutseen,
+records none)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -95,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         presses, method = _targets(Path(args.path), args.method)
         pairs = [(folder, None) for folder in presses]
     rows, unsolved, damaged, outdated = [], [], [], []
-    seen: dict[str, str | None] = {}  # each scored NLiPsNet result's `trained_on` (learn.seen): None when not told
+    seen: dict[str, str | None] = {}  # each scored learnt result's `trained_on` (learn.seen): None when not told
     for folder, out in pairs:
         rec = _load(folder, method, single=len(pairs) == 1, out=out)
         stale = None if rec is None or isinstance(rec, str) or out else _stale(folder, method)
@@ -118,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
                 damaged.append((folder.name, str(exc)))
                 continue
             rows.append((folder.name, scores[args.region]))
-            if rec.report.get("method") == "nlipsnet":  # a network's result: it may say whether it learnt from it
+            if rec.report.get("method") in LEARNT:  # a network's or a table's: it may say whether it learnt from it
                 seen[folder.name] = _trained_on(rec.report)
     if not rows and not damaged and not outdated:
         raise CaptureError(
@@ -132,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     if rows:  # stderr: what was scored; stdout: the table alone (the command's product, for scripts)
         say(f"scoring {_scored(Path(args.path), pairs, method, args.result)}")
     _print(rows, seen)
-    if rows and (line := _seen_line(rows, seen)):
+    if rows and (line := _seen_line(rows, seen, method)):
         say(line, warning=not any(seen.values()))
     scored = {name for name, _ in rows}
     if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
@@ -703,10 +708,10 @@ def _split_by_seen(rows: list[tuple[str, dict]], told: dict[str, str]) -> dict[s
     }
 
 
-def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None]) -> str | None:
+def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None], method: str) -> str | None:
     """The line below the table that names the seen and unseen presses' scores, or that says once that the results
-    do not tell them apart; None without an NLiPsNet result among them (``seen``: NLiPsNet's results alone; NLiPs's
-    and a lookup table's never tell).
+    do not tell them apart; None without a learnt result among them (``seen``: NLiPsNet's and the lookup table's
+    results alone, :data:`LEARNT`; NLiPs's never tell). ``method``: the results' (its model's command is named).
 
     Why: the paper scores NLiPsNet on presses like those it learnt from and on others apart; a model file records
     the presses it learnt from by name alone before 2026-12-07, so eval could not tell a trained press from another
@@ -716,9 +721,10 @@ def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None]) -> str
         if not seen:
             return None
         return (
-            "seen and unseen presses not told apart: the results record no `trained_on` (inferred by a model or an "
-            "nlipscalib before 2026-12-07, which record no captures the model learnt from; `nlips train` and `nlips "
-            "infer` again record it): scored together"
+            "seen and unseen presses not told apart: the results record no `trained_on` (an image frame's, or "
+            "inferred by an nlipscalib before 2026-12-07 or a model that records no captures it learnt from: a network "
+            "trained before 2026-12-07, a table fitted before s42-lutseen, a dataset that records none; "
+            f"{LEARNT.get(method, LEARNT['nlipsnet'])} and `nlips infer` again record it): scored together"
         )
     parts = []
     for group, part in _split_by_seen(rows, told).items():

@@ -29,7 +29,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the samples of a calibration dataset from `nlips calibrate`, the ones `nlips train` trains NLiPsNet on, and "
         "write it as a model file (.pt) carrying the sensor and undeformed reference it is valid for. `nlips infer "
         "TABLE.pt PRESSES` then writes PRESS/lut/ (normals, depth, --ply) and `nlips eval PRESSES --method lut` "
-        "scores it as NLiPsNet's PRESS/nlipsnet is. The same fit again writes the same file.",
+        "scores it as NLiPsNet's PRESS/nlipsnet is, the presses it was fitted on (the captures the file records) and "
+        "the others apart. The same fit again writes the same file.",
     )
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="table's model file to write (.pt)")

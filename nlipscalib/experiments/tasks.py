@@ -541,7 +541,14 @@ def view_path(out: Path, task_id: str) -> Path:
 def _write_samples(
     adapters: ModuleType, out: Path, task: Task, press: Press, reference: Path, rec: Reconstruction | None
 ) -> dict:
-    """Write the press's calibration samples (from the NLiPs labels ``rec``) and its figure crop."""
+    """Write the press's calibration samples (from the NLiPs labels ``rec``) and its figure crop.
+
+    The samples' record (the task result's ``samples``, whence its dataset entry: :func:`dataset_entry`) carries the
+    identity of the capture the labels were solved from (``capture_identity``, as ``nlips calibrate``'s: the label
+    solve's ``provenance.inputs.press``), so a model trained or a table fitted on the experiment's dataset tells the
+    presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS)."""
+    from ..learn.dataset import recorded_capture_identity
+
     if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
         return {"file": None, "error": "the NLiPs label solve failed"}
     arrays = adapters.calibration_samples(press, rec, reference, task.samples)
@@ -552,7 +559,7 @@ def _write_samples(
         "count": int(len(arrays["rgb"])),
         "contact": int(arrays["contact"].sum()),
         "has_truth": bool(press.ground_truth is not None),
-    }
+    } | recorded_capture_identity(getattr(rec, "report", None))
     adapters.write_samples(path, arrays, dataset_entry(out, task, info))
     view = adapters.figure_view(press, reference, task.samples)
     if view:
@@ -563,8 +570,12 @@ def _write_samples(
 def dataset_entry(out: Path, task: Task, info: dict) -> dict:
     """A press task's entry in the experiment's calibration dataset (learn.dataset's index.json), from the
     ``samples`` record of its result; ``stamp``, the identity of its samples, is the task's hash (its press, scene,
-    solves and sampling)."""
+    solves and sampling); ``capture_identity`` where the record holds it (:func:`_write_samples`; a task run before
+    2026-12-07 evening records none)."""
+    from ..learn.dataset import CAPTURE_IDENTITY
+
     ind = task.press["indenter"]
+    identity = info.get(CAPTURE_IDENTITY)
     return {
         "name": task.id,
         "folder": str(Path(out) / "presses" / task.id),
@@ -578,7 +589,7 @@ def dataset_entry(out: Path, task: Task, info: dict) -> dict:
             "depth_mm": task.press["depth"],
         },
         "stamp": task.hash,
-    }
+    } | ({CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {})
 
 
 def _solve_one(

@@ -707,7 +707,14 @@ def _capture_identity(result: Path, report: dict | None = None) -> dict:
             report = read_report(result)
         except CaptureError:
             return {}
-    provenance = report.get("provenance")
+    return recorded_capture_identity(report)
+
+
+def recorded_capture_identity(report: object) -> dict:
+    """``{"capture_identity": hex}``: the identity of the capture an NLiPs result's labels were solved from, as its
+    report.json records it (``provenance.inputs.press``), or ``{}`` when it records none: the index.json entry's key
+    for `nlips calibrate`'s presses and the experiments' press tasks alike (``experiments.tasks``)."""
+    provenance = report.get("provenance") if isinstance(report, dict) else None
     inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
     identity = inputs.get("press") if isinstance(inputs, dict) else None
     return {CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {}

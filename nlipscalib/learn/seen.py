@@ -1,7 +1,8 @@
 """Whether a model learnt from the capture it is given: the rule behind a result's ``trained_on`` (report.json).
 
-A model file (format 2) records the capture identity of every press it was trained or validated on (``info.captures``,
-from its dataset's index.json); an NLiPsNet result of a press records the identity of the capture it read
+A model file (format 2; a lookup table's file fitted since 2026-12-07 evening) records the capture identity of every
+press it was trained, validated or fitted on (``info.captures``, from its dataset's index.json); an NLiPsNet or
+lookup-table result of a press records the identity of the capture it read
 (``provenance.inputs.press``: SHA-256 of meta.json, every image and reference.npz). The two are compared by content,
 so a press of the same name in another dataset (another session, another noise seed) is unseen, and a copy of a
 trained press elsewhere is seen. ``nlips eval`` scores seen and unseen presses apart from it.
@@ -24,9 +25,10 @@ def trained_on(info: dict, inputs: dict | None) -> str | None:
     """:data:`TRAINED`, :data:`VALIDATED` or :data:`UNSEEN`: whether the model whose ``info`` this is (a model file's)
     learnt from the capture ``inputs`` identifies (a result's ``provenance.inputs``); None when it cannot tell.
 
-    It cannot tell when the model records no capture identities (format 1, before 2026-12-07), when the input is an
-    image frame (``{"frame": ...}``: the file's digest, not a capture's), and when the input matches none of the
-    identities while some press's identity is unrecorded (that press may be this capture)."""
+    It cannot tell when the model records no capture identities (format 1, before 2026-12-07; a lookup table fitted
+    before s42-lutseen), when the input is an image frame (``{"frame": ...}``: the file's digest, not a capture's),
+    and when the input matches none of the identities while some press's identity is unrecorded (that press may be
+    this capture)."""
     captures = info.get(CAPTURES_KEY) if isinstance(info, dict) else None
     identity = inputs.get("press") if isinstance(inputs, dict) else None
     if not isinstance(captures, dict) or not captures or not isinstance(identity, str):

@@ -134,6 +134,7 @@ def test_nlipsnet_samples_and_scores_are_identical_on_a_dask_cluster(tmp_path):
     from nlipscalib.experiments.plan import PressSet
     from nlipscalib.experiments.summary import clean
     from nlipscalib.learn.dataset import ENTRY_KEY
+    from nlipscalib.pipeline import capture_identity
 
     exp = get("q2")
     quick = exp.config("quick")
@@ -157,7 +158,10 @@ def test_nlipsnet_samples_and_scores_are_identical_on_a_dask_cluster(tmp_path):
             for key in set(a.files) - {ENTRY_KEY}:
                 np.testing.assert_array_equal(a[key], b[key])
             here, dask = (json.loads(bytes(f[ENTRY_KEY])) for f in (a, b))
-            # the same task (stamp) wrote both; their press folders differ by the run's output folder only
+            # the same task (stamp) wrote both; their press folders differ by the run's output folder only, and their
+            # captures by the render each run made (meta.json records its render_seconds): each names its own
+            for entry in (here, dask):
+                assert entry.pop("capture_identity") == capture_identity(entry["folder"])
             assert Path(here.pop("folder")).name == Path(dask.pop("folder")).name and here == dask
     assert clean(docs["dask"]["learned"]["scores"]) == clean(docs["here"]["learned"]["scores"])  # NaN-safe
     assert clean(_numbers(docs["dask"])) == clean(_numbers(docs["here"]))

@@ -4,6 +4,7 @@ uses only its own task's samples, whole (no render: the task's result and sample
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -268,3 +269,53 @@ def test_a_bumped_sampling_rule_makes_the_press_tasks_samples_anew(tmp_path, mon
     assert task.hash != was["task"] and plain.hash == was["plain"]
     assert dataset.dataset_run([], tmp_path, SamplingConfig())["key"] != was["run"]
     assert load_result(tmp_path, task) is None  # the run makes it again
+
+
+def test_an_experiments_dataset_records_the_capture_each_press_tasks_labels_were_solved_from(tmp_path, monkeypatch):
+    """A press task's samples record the identity of the capture its label solve read (``provenance.inputs.press``,
+    as `nlips calibrate`'s do), and the experiment's index.json carries it: a model trained or a table fitted there
+    then tells its presses from the others (report.json `trained_on`). The press here is solved by the experiments'
+    own solving path (``adapters.solve``: the pipeline), on an exact-data 64x48 press; a task result of before,
+    without it, gives an entry without it."""
+    from nlipscalib.core import capture, sensor_record
+    from nlipscalib.experiments import adapters
+    from nlipscalib.learn import dataset
+    from nlipscalib.pipeline import capture_identity
+    from nlipscalib.solver import SolverOptions
+    from tests.solver import synth
+
+    folder = tmp_path / "presses" / "sphere-p10"
+    synth.make_press(folder, "sphere", size=(64, 48))
+    press = adapters.load(folder)
+    rec = adapters.solve(
+        press, out=folder / "solves" / "x", interreflection="off", roi="full", options=SolverOptions(max_iters=4)
+    )
+    task = _task()
+    fake = SimpleNamespace(
+        calibration_samples=lambda *a: _arrays(),
+        write_samples=adapters.write_samples,
+        figure_view=lambda *a: {},
+    )
+    info = tasks._write_samples(fake, tmp_path, task, press, tmp_path, rec=rec)
+    identity = capture_identity(folder)
+    assert info["capture_identity"] == identity
+    entry, _ = adapters.samples_entry(samples_path(tmp_path, task.id))
+    assert entry["capture_identity"] == identity and entry == dataset_entry(tmp_path, task, info)
+
+    sensor = _sensor()
+    cam = sensor["camera"]
+    monkeypatch.setattr(capture, "load_press", lambda where: SimpleNamespace(folder=where))
+    monkeypatch.setattr(sensor_record, "sensor_of", lambda where: sensor)
+    plane = np.zeros((cam["height"], cam["width"]), np.float32)
+    colour = np.zeros(plane.shape + (3,), np.float32)
+    arrays = {"tricolor": colour, "dark": colour, "depth": plane, "normals": colour, "valid": plane > 0}
+    monkeypatch.setattr(dataset, "reference_arrays", lambda where: arrays)
+    body = {"id": task.id, "kind": "press", "task_hash": task.hash, "status": "done", "samples": info}
+    write_json(result_path(tmp_path, task.id), body | {"made_with": tasks.made_with(task.kind, samples=True)})
+    data, _ = learning.assemble_dataset(tmp_path, [task], task.samples)
+    assert data.entry(task.id)["capture_identity"] == identity and data.load(task.id)["rgb"].shape == (5, 3)
+    index = json.loads((data.folder / "index.json").read_text(encoding="utf-8"))
+    assert index["presses"][0]["capture_identity"] == identity
+
+    del info["capture_identity"]  # a task run before its samples recorded the capture
+    assert "capture_identity" not in dataset_entry(tmp_path, task, info)

@@ -259,3 +259,47 @@ def test_eval_scores_the_presses_a_model_learnt_from_and_the_others_apart(solved
     assert out.splitlines()[0].split()[:2] == ["press", "pixels"]  # the table as before
     assert set(_table(out)) == {*PRESSES, HELD, "mean", "pooled"}
     assert err.count("seen and unseen presses not told apart") == 1
+
+
+def test_a_lookup_table_records_the_captures_it_was_fitted_on_and_eval_scores_its_seen_and_unseen_presses_apart(
+    solved, built, tmp_path, capsys
+):
+    """`nlips lut` fitted on a_sphere, b_cube and c_sphere_deep (d_cube_deep kept out): the table's file records their
+    captures as a network's does, `nlips infer` writes `trained_on` into its results, and `nlips eval --method lut`
+    gives the seen and unseen presses apart (a table has no validation presses: every seen press is "train"). A table
+    fitted before it recorded captures: scored together, said once, naming `nlips lut`."""
+    table = tmp_path / "lut.pt"
+    assert main(["--no-progress", "lut", str(built), "--out", str(table), "--exclude", HELD]) == 0
+    payload = torch.load(table, weights_only=True)
+    assert payload["format_version"] == 1  # an added `info` key no reader of version 1 refuses: the version stays
+    assert payload["info"]["captures"] == {name: capture_identity(solved / name) for name in PRESSES}
+    presses = tmp_path / "presses"
+    for name in [*PRESSES, HELD]:
+        shutil.copytree(solved / name, presses / name)
+    assert main(["--no-progress", "infer", str(table), str(presses), "--figures", "none"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(presses), "--method", "lut"]) == 0
+    out, err = capsys.readouterr()
+    table_rows = _table(out)
+    assert out.splitlines()[0].split()[:3] == ["press", "data", "pixels"]
+    assert {name: table_rows[name][0] for name in [*PRESSES, HELD]} == {
+        **dict.fromkeys(PRESSES, "train"),
+        HELD: "unseen",
+    }
+    assert int(table_rows["pooled seen"][0]) == sum(int(table_rows[n][1]) for n in PRESSES)
+    assert int(table_rows["pooled unseen"][0]) == int(table_rows[HELD][1])
+    assert "seen: 3 press(es), pooled AAE" in err and "unseen: 1 press(es), pooled AAE" in err
+
+    old = tmp_path / "old.pt"  # as `nlips lut` wrote it before it recorded captures
+    del payload["info"]["captures"]
+    torch.save(payload, old)
+    assert (
+        main(["--no-progress", "infer", str(old), str(presses), "--out", str(tmp_path / "old"), "--figures", "none"])
+        == 0
+    )
+    capsys.readouterr()
+    assert main(["eval", str(presses), "--result", str(tmp_path / "old")]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].split()[:2] == ["press", "pixels"]  # the table as before
+    assert set(_table(out)) == {*PRESSES, HELD, "mean", "pooled"}
+    assert err.count("seen and unseen presses not told apart") == 1 and "`nlips lut` and `nlips infer`" in err
