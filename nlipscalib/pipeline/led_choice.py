@@ -87,7 +87,9 @@ def _spread(reference: Reference, camera: Camera, leds: tuple[Led, ...], diamete
     rows, cols = np.nonzero(np.isfinite(reference.depth))
     step = max(1, rows.size // SPREAD_SAMPLES)  # every k-th gel pixel: deterministic, ~1000 samples
     rows, cols = rows[::step], cols[::step]
-    points = np.ascontiguousarray(depth_to_points(reference.depth[rows, cols], camera.rays[rows, cols]), np.float64)
+    u, v = camera.pixel_grid()  # the sampled pixels' rays only: the whole image's took ~90 ms of CPU at 640x480
+    rays = camera.unproject(np.stack([u[rows, cols], v[rows, cols]], axis=-1))
+    points = np.ascontiguousarray(depth_to_points(reference.depth[rows, cols], rays), np.float64)
     normals = np.ascontiguousarray(reference.normals[rows, cols], np.float64)
     digest = hashlib.sha1(points.tobytes() + normals.tobytes() + repr([led.to_dict() for led in leds]).encode())
     key = (digest.hexdigest(), diameter)
