@@ -351,3 +351,17 @@ def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tm
     assert "led_radius" not in with_file
     subset, _ = _solve(rim_sphere.folder, tmp_path / "subset", "--leds", "1,2,3,4,5,6,7,8")
     assert subset["led_radius"] == RADIUS
+
+
+def test_calibrate_records_disks_where_auto_solves_disks_and_nothing_where_points(rim_sphere, tmp_path, monkeypatch):
+    """``nlips calibrate``'s dataset record names ``led_model`` only for disk solves: "auto" on a design whose point
+    LEDs miss its disks unevenly records "disks" (the labels change), on one below the level nothing (the point
+    datasets keep their records, so they are not rebuilt)."""
+    from nlipscalib.cli.calibration import _solves_disks
+    from nlipscalib.core import tolerances
+
+    folder = rim_sphere.folder
+    assert _solves_disks("auto", None, folder) and _solves_disks("disks", None, folder)
+    assert not _solves_disks("points", None, folder)
+    monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
+    assert not _solves_disks("auto", None, folder)
