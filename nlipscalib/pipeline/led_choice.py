@@ -47,8 +47,8 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
     folder = Path(folder)
     try:
         diameter, source = capture_led_diameter(read_meta(folder), str(folder / META_FILE))
-    except ConfigError as exc:  # a bad recorded size: points, as before sizes were recorded; said once
-        _say(f"{exc}", f"{folder}: LEDs solved as points (--led-model auto: {exc})")
+    except ConfigError as exc:  # a bad recorded size: points, as before sizes were recorded; a warning, said once
+        _say(f"{exc}", f"{folder}: LEDs solved as points (--led-model auto: {exc})", logging.WARNING)
         return 0.0
     if not diameter > 0:
         _say(source, f"{folder}: LEDs solved as points (--led-model auto: {source.split(': ', 1)[-1]})")
@@ -71,9 +71,9 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
     return diameter if disks else 0.0
 
 
-def _say(key: str, line: str) -> None:
+def _say(key: str, line: str, level: int = logging.INFO) -> None:
     if said_once.first_time(f"led model {key}"):
-        log.info("%s", line)
+        log.log(level, "%s", line)
 
 
 def _spread(reference: Reference, camera: Camera, leds: tuple[Led, ...], diameter: float) -> float:
