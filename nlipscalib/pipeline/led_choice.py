@@ -29,7 +29,7 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
     for points: the design's declared ``leds.emitter_diameter`` where the point LEDs miss those disks' light over the
     undeformed gel by a spread above :data:`~nlipscalib.core.tolerances.POINT_LED_SPREAD_FOR_DISKS` (the shipped
     flat pad, oblate and capsule designs; not the hemisphere nor the fingertip). Says once per design which model and
-    why (INFO).
+    why: INFO for disks, DEBUG for points (the model solves always took, nothing new to say without -v).
 
     Parameters
     ----------
@@ -51,12 +51,13 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
         _say(f"{exc}", f"{folder}: LEDs solved as points (--led-model auto: {exc})", logging.WARNING)
         return 0.0
     if not diameter > 0:
-        _say(source, f"{folder}: LEDs solved as points (--led-model auto: {source.split(': ', 1)[-1]})")
+        _say(source, f"{folder}: LEDs solved as points (--led-model auto: {source.split(': ', 1)[-1]})", logging.DEBUG)
         return 0.0
     optics = read_optics(folder)
     leds = optics.leds if led_subset is None else tuple(optics.leds[i] for i in led_subset)
     if optics.reference is None:  # no undeformed surface to judge the point model on
-        _say(f"noref {diameter}", f"{folder}: LEDs solved as points (--led-model auto: no reference.npz to judge on)")
+        why = f"{folder}: LEDs solved as points (--led-model auto: no reference.npz)"
+        _say(f"noref {diameter}", why, logging.DEBUG)
         return 0.0
     spread = _spread(optics.reference, optics.camera, leds, diameter)
     limit = tolerances.POINT_LED_SPREAD_FOR_DISKS
@@ -67,6 +68,7 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
         f"{diameter} {spread:.4f} {[led.to_dict() for led in leds]}",
         f"{folder}: LEDs solved {how} (--led-model auto: as points they miss the {diameter:g} mm disks' light over "
         f"this gel by {100 * spread:.2f} % rms, {side} {100 * limit:.1f} %; --led-model points|disks to choose)",
+        logging.INFO if disks else logging.DEBUG,  # points, the model as ever: said with -v only (experiments' logs)
     )
     return diameter if disks else 0.0
 

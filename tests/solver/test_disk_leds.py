@@ -328,18 +328,24 @@ def test_the_flat_pads_own_leds_are_solved_as_its_designs_disks_by_default(flat_
 
 def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tmp_path, caplog, monkeypatch):
     """The hemisphere's own LEDs (spread 0.0072 in its gel-filling view) stay points: here the rim view's 0.014
-    against a level raised above it, which solves the ``--led-model points`` result bit for bit and says why; an
-    LED file's LEDs are points under auto as before; a subset of the capture's own LEDs is judged too."""
+    against a level raised above it, which solves the ``--led-model points`` result bit for bit and says why at DEBUG
+    (-v); an LED file's LEDs are points under auto as before; a subset of the capture's own LEDs is judged too."""
     import json
     import logging
 
-    from nlipscalib.core import tolerances
+    from nlipscalib.core import said_once, tolerances
+    from nlipscalib.pipeline.led_choice import auto_led_diameter
 
     caplog.set_level(logging.INFO)
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
     auto, auto_depth = _solve(rim_sphere.folder, tmp_path / "auto")
-    lines = [r.getMessage() for r in caplog.records if "--led-model auto" in r.getMessage()]
-    assert len(lines) == 1 and "LEDs solved as points" in lines[0] and "not above 2.0 %" in lines[0], lines
+    assert not [r for r in caplog.records if "--led-model auto" in r.getMessage()]  # points as ever: nothing new
+    caplog.set_level(logging.DEBUG, logger="nlipscalib")
+    with said_once.scope():
+        assert auto_led_diameter(rim_sphere.folder) == 0.0
+    (line,) = [r for r in caplog.records if "--led-model auto" in r.getMessage()]  # -v: why points
+    assert line.levelname == "DEBUG" and "LEDs solved as points" in line.getMessage(), line.getMessage()
+    assert "not above 2.0 %" in line.getMessage(), line.getMessage()
     points, points_depth = _solve(rim_sphere.folder, tmp_path / "points", "--led-model", "points")
     assert "led_radius" not in auto and auto == points
     np.testing.assert_array_equal(auto_depth, points_depth)
