@@ -191,8 +191,8 @@ def run(args: argparse.Namespace) -> int:
     presses = [p for p in presses if p.name not in damaged]
     judged = {} if args.keep_tricolor_mismatch else tricolor_left_out(root, presses, out, not args.no_progress)
     solve = {"normals": args.normals, "leds": leds}
-    if args.led_model != "points":  # recorded when not the default: the datasets of point LEDs keep their records
-        solve["led_model"] = args.led_model
+    if _solves_disks(args.led_model, leds, reference):  # recorded for disks only: point datasets keep their records
+        solve["led_model"] = "disks"
     if args.keep_tricolor_mismatch:  # decides which presses the index holds; recorded only when given, as above
         solve["keep_tricolor"] = True
     run = dataset_run(presses, reference, cfg, solve=solve)
@@ -222,6 +222,17 @@ def check_own_folder(out: Path, presses: list[Path], default: Path) -> None:
         f"--out {out}: {what}; the calibration dataset needs a folder of its own (default {default}): "
         "give another --out, or leave it out"
     )
+
+
+def _solves_disks(led_model: str, leds: str | None, reference: Path) -> bool:
+    """Whether ``--led-model`` solves the presses' LEDs as disks: "disks", or "auto" on the capture's own LEDs of a
+    design whose point LEDs miss its disks unevenly (:func:`nlipscalib.pipeline.settings.for_press`; the presses are
+    of the reference's design, ``reference_fits``)."""
+    from ..pipeline.settings import for_press, make_settings
+
+    if led_model != "auto":
+        return led_model == "disks"
+    return "led_radius" in dict(for_press(reference, make_settings(leds=leds, led_model="auto")).solver_keywords)
 
 
 def _left_out_damaged(root: Path, presses: list[Path], out: Path) -> dict[str, str]:
@@ -491,14 +502,16 @@ def solve_all(
     progress: bool = True,
     leds: str | None = None,
     normals: str = "depth",
-    led_model: str = "points",
+    led_model: str = "auto",
 ) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
     presses already solved with the same options and inputs are skipped. ``leds``: an LED file from ``nlips
     calibrate-leds`` to solve with (None: each capture's LEDs); its LED values are part of a result's settings,
     so a result solved with other LEDs is solved again. ``normals``: ``SolverOptions.normals`` of the labels
-    (a result with the other normals is solved again). ``led_model``: "points" or "disks", the LED file's fitted disk
-    emitters (``nlips solve --led-model``; recorded in a result's settings, so a result of the other is solved again).
+    (a result with the other normals is solved again). ``led_model``: "auto", "points" or "disks" (the LED file's
+    fitted disk emitters, or each capture's own LEDs as its design's disks; "auto":
+    :func:`nlipscalib.pipeline.settings.for_press`; ``nlips solve --led-model``; recorded in a result's settings, so a
+    result of the other is solved again).
 
     The dataset needs every press's result, so a press another run (a second ``nlips calibrate`` or
     ``nlips solve`` on the folder) is solving is waited for (``wait=True``) rather than skipped: its

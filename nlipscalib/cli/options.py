@@ -35,17 +35,19 @@ run_dataset`'s ``workers=0``."""
 
 
 def add_led_model(parser: argparse.ArgumentParser) -> None:
-    """``--led-model points|disks`` (dest ``led_model``) of every command that solves presses with an LED file
-    (``solve``, ``calibrate``): one flag, one text, :func:`nlipscalib.pipeline.solve_presses`' ``led_model``."""
+    """``--led-model auto|points|disks`` (dest ``led_model``) of every command that solves presses (``solve``,
+    ``calibrate``): one flag, one text, :func:`nlipscalib.pipeline.solve_presses`' ``led_model``."""
     parser.add_argument(
         "--led-model",
-        choices=("points", "disks"),
-        default="points",
-        help="the LEDs of --leds FILE: points (default) or disks (the light cups its calibration fitted, solved as "
-        "disks: ~1.1x the solve's CPU; for a view that sees the gel beside the LEDs, e.g. down to the dome's base, "
-        "where points misplace the whole gel's depth by up to 0.1 mm); without --leds FILE (solve only): the "
-        "capture's own LEDs as disks of the size its design declares (the flat pad, oblate and capsule designs, "
-        "whose gel their light reaches at grazing angles: the flat pad's cube press 0.89 -> 0.24 deg)",
+        choices=("auto", "points", "disks"),
+        default="auto",
+        help="how the LEDs are modelled. auto (default): --leds FILE's as points; without it the capture's own LEDs "
+        "as disks of the size its design declares where points would miss their light unevenly over the gel (the "
+        "flat pad, oblate and capsule designs: the flat pad's cube press 0.89 -> 0.24 deg), as points otherwise "
+        "(the hemisphere, fingertip); one INFO line says so where it picks disks (-v: why points). points: always "
+        "points. disks: --leds FILE's fitted disks (~1.1x the solve's CPU; for a view that sees the gel beside the "
+        "LEDs, where points misplace the whole gel's depth by up to 0.1 mm), or without it (solve only) the "
+        "design's disks",
     )
 
 

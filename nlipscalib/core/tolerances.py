@@ -312,10 +312,10 @@ the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wal
 with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits
 against 2,464; s27-shapes2). Not read from the capture: the press format does not describe the LED package."""
 POINT_LED_SPREAD_FOR_DISKS = 0.012
-"""``nlips solve`` with the capture's own LEDs (no ``--leds`` file) as points, on a design that declares its LEDs' size
-(``leds.emitter_diameter``): where the point LEDs miss the disks' light over the gel by more than this spread
-(:func:`nlipscalib.solver.point_led_error.point_led_spread`, the std of log(disk / point)), the solve says to model
-them as disks (``--led-model disks``) or to calibrate them (:func:`nlipscalib.pipeline.solve.hint_design_disks`).
+"""A solve with the capture's own LEDs (no ``--leds`` file) under ``--led-model auto`` (the default), on a design that
+declares its LEDs' size (``leds.emitter_diameter``): where the point LEDs miss the disks' light over the gel by more
+than this spread (:func:`nlipscalib.solver.point_led_error.point_led_spread`, the std of log(disk / point)), the LEDs
+are solved as those disks, points otherwise (:func:`nlipscalib.pipeline.led_choice.auto_led_diameter`).
 Why: the flat pad (0.0145) and the oblate dome (0.0135) lose most to points: the twin's flat cube pressed 1 mm at
 polar 25 deg, contact AAE 0.889 deg with the design's point LEDs, 0.238 as disks (0.262 with LEDs calibrated as
 points); oblate 0.437 -> 0.298. The hemisphere (0.0072) is left alone: there the disks gain 0.012 deg on its cube

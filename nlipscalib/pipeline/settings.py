@@ -45,9 +45,11 @@ class SolveSettings:
     """Solver backend: "numpy" or "torch"."""
     solver_keywords: tuple[tuple[str, object], ...] = ()
     """Further keyword arguments of solver.solve_press (name, value), e.g. dent_interreflection."""
-    design_disks: bool = False
-    """``--led-model disks`` without an LED file: each press's own LEDs solved as disks of the size its sensor design
-    declares (``leds.emitter_diameter``), set per press by :func:`for_press` (its ``led_radius`` is then recorded)."""
+    design_leds: str = "points"
+    """The model of each press's own LEDs (no LED file): "disks" (``--led-model disks``: disks of the size its sensor
+    design declares, ``leds.emitter_diameter``), "auto" (those disks where points miss their light unevenly over its
+    gel, :func:`nlipscalib.pipeline.led_choice.auto_led_diameter`) or "points"; resolved per press by
+    :func:`for_press` (a disk solve's ``led_radius`` is then recorded, a point solve's settings are a point solve's)."""
 
     def describe(self) -> dict:
         """JSON-able record of the settings (paths as given; values that decide the result)."""
@@ -75,14 +77,16 @@ def make_settings(
     options: SolverOptions | None = None,
     backend: str = "numpy",
     solver_keywords: dict | None = None,
-    led_model: str = "points",
+    led_model: str = "auto",
 ) -> SolveSettings:
     """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`.
 
     ``led_model`` "disks": the LED file's fitted disk emitters and their radius are solve_press's ``emitters`` and
     ``led_radius`` (recorded in ``solver_keywords``), the NLiPs solves' and the indirect term's LEDs; its point LEDs
     stay ``leds`` (the ``--roi auto`` edge's point-LED misfit). Without an LED file (the capture's own LEDs, a
-    subset of them too) they are the capture's LEDs as disks of its design's size, per press (:func:`for_press`)."""
+    subset of them too) they are the capture's LEDs as disks of its design's size, per press (:func:`for_press`).
+    "auto" (the default): an LED file's or given LEDs' points; the capture's own LEDs as those disks where its
+    design's point LEDs miss them unevenly (the flat pad, oblate and capsule designs), points otherwise."""
     from ..solver import SolverOptions
 
     if options is None:
@@ -92,10 +96,11 @@ def make_settings(
     if backend not in ("numpy", "torch"):
         raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
-    if led_model not in ("points", "disks"):
-        raise ConfigError(f"led_model must be 'points' or 'disks', got {led_model!r}")
-    design_disks = led_model == "disks" and leds_file is None and led_values is None
-    if led_model == "disks" and not design_disks:  # the NLiPs solves', the indirect term's and the contact map's LEDs
+    if led_model not in ("auto", "points", "disks"):
+        raise ConfigError(f"led_model must be 'auto', 'points' or 'disks', got {led_model!r}")
+    own = leds_file is None and led_values is None and "led_radius" not in (solver_keywords or {})
+    design_leds = led_model if own else "points"
+    if led_model == "disks" and not own:  # the NLiPs solves', the indirect term's and the contact map's LEDs
         emitters, radius = disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
@@ -112,34 +117,43 @@ def make_settings(
         options=options,
         backend=backend,
         solver_keywords=tuple(sorted(_solver_keywords(solver_keywords).items())),
-        design_disks=design_disks,
+        design_leds=design_leds,
     )
 
 
 def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
-    """``settings`` for one press: with :attr:`SolveSettings.design_disks`, its own LEDs as disks of the diameter its
-    sensor design declares (``core.sensor.capture_led_diameter``: meta.json's design or the twin's scene), recorded
-    as solve_press's ``led_radius``; otherwise ``settings`` unchanged.
+    """``settings`` for one press: with :attr:`SolveSettings.design_leds` "disks", its own LEDs as disks of the
+    diameter its sensor design declares (``core.sensor.capture_led_diameter``: meta.json's design or the twin's
+    scene), recorded as solve_press's ``led_radius``; with "auto", those disks where the point LEDs miss them unevenly
+    over its gel and points otherwise (:func:`nlipscalib.pipeline.led_choice.auto_led_diameter`, which says so once
+    per design); otherwise ``settings`` unchanged. Every solve of a press goes through here (``nlips solve``,
+    ``demo``, ``calibrate``'s press solves, the experiments' press tasks), so one press gets one model.
 
     Raises
     ------
     ConfigError
-        The capture's design declares no LED size, naming its meta.json and what to do instead.
+        "disks" on a capture whose design declares no LED size, naming its meta.json and what to do instead.
     """
-    if not settings.design_disks:
+    if settings.design_leds == "points":
         return settings
     from ..core.press_meta import META_FILE, read_meta
     from ..core.sensor import capture_led_diameter
+    from .led_choice import auto_led_diameter
 
-    diameter, source = capture_led_diameter(read_meta(folder), str(Path(folder) / META_FILE))
-    if not diameter > 0:
-        raise ConfigError(
-            f"{source}: --led-model disks without --leds needs the LEDs' size: give --leds FILE from `nlips "
-            "calibrate-leds REFERENCE --led-diameter MM`, or solve with --led-model points"
-        )
+    if settings.design_leds == "auto":
+        diameter = auto_led_diameter(folder, settings.led_subset)
+        if not diameter > 0:  # points: the settings of a point solve, whose results and records stay as they were
+            return dataclasses.replace(settings, design_leds="points")
+    else:
+        diameter, source = capture_led_diameter(read_meta(folder), str(Path(folder) / META_FILE))
+        if not diameter > 0:
+            raise ConfigError(
+                f"{source}: --led-model disks without --leds needs the LEDs' size: give --leds FILE from `nlips "
+                "calibrate-leds REFERENCE --led-diameter MM`, or solve with --led-model points"
+            )
     keywords = {**dict(settings.solver_keywords), "led_radius": diameter / 2, "emitters": None}
     return dataclasses.replace(
-        settings, design_disks=False, solver_keywords=tuple(sorted(_solver_keywords(keywords).items()))
+        settings, design_leds="points", solver_keywords=tuple(sorted(_solver_keywords(keywords).items()))
     )
 
 

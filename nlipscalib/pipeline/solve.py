@@ -60,7 +60,7 @@ def solve_folder(
     out: str | Path | None = None,
     solver_keywords: dict | None = None,
     announce_reuse: bool = True,
-    led_model: str = "points",
+    led_model: str = "auto",
 ) -> tuple[Reconstruction | None, str]:
     """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
 
@@ -117,7 +117,7 @@ def solve_presses(
     figures: bool | str = True,
     solver_keywords: dict | None = None,
     wait: bool = False,
-    led_model: str = "points",
+    led_model: str = "auto",
 ) -> dict[str, str]:
     """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
 
@@ -136,8 +136,10 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
-    led_model : "points" (the LED file's point LEDs) or "disks" (its fitted disk emitters, solved as disks:
-        a view that sees the gel beside the LEDs, e.g. down to the dome's base; ``nlips solve --led-model``)
+    led_model : "auto" (default: the LED file's point LEDs; the capture's own as disks of its design's declared
+        size where points miss them unevenly over its gel, points otherwise, :func:`.settings.for_press`),
+        "points", or "disks" (the LED file's fitted disk emitters, or the capture's own as its design's disks: a
+        view that sees the gel beside the LEDs, the flat pad; ``nlips solve --led-model``)
     wait : a press another live process of these settings is solving is waited for at once (then its result
         is reused, or the press solved here when that process failed); without it such presses are left to
         that process first and waited for once this run's other presses are done (two runs of one settings on
@@ -423,7 +425,6 @@ def _solve_and_save(
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     hint_disk_leds(folder, settings, result.report, press.led_images.shape[-3] * press.led_images.shape[-2])
-    hint_design_disks(press, settings)
     return result
 
 
@@ -478,54 +479,6 @@ def hint_disk_leds(folder: Path, settings: SolveSettings, report: dict, frame_pi
             folder,
             100 * share,
             settings.leds_file,
-        )
-
-
-DESIGN_DISK_SAMPLES = 1000
-"""Gel pixels :func:`hint_design_disks` judges the point LEDs on (the spread within 0.0002 of 4000 samples' on the
-shipped designs, at a quarter of the CPU)."""
-
-
-def hint_design_disks(press: Press, settings: SolveSettings) -> None:
-    """Say once per sensor design when a solve with the capture's own LEDs as points (no ``--leds`` file) is on a
-    design whose declared LED size the point model misses unevenly over the gel (:func:`nlipscalib.solver.
-    point_led_error.point_led_spread` above :data:`~nlipscalib.core.tolerances.POINT_LED_SPREAD_FOR_DISKS`: the
-    shipped flat pad, oblate and capsule designs): ``--led-model disks`` or calibrated LEDs are the better model,
-    which a user could not know to ask for (the flat pad's cube press 0.89 deg as points, 0.24 as disks)."""
-    import numpy as np
-
-    from ..core import tolerances
-    from ..core.camera import depth_to_points
-    from ..core.sensor import capture_led_diameter
-    from ..solver.point_led_error import point_led_spread
-
-    if settings.leds is not None or "led_radius" in dict(settings.solver_keywords):
-        return
-    try:
-        diameter, _ = capture_led_diameter(press.meta)
-    except ConfigError:  # a bad recorded size: `--led-model disks` names it; no hint here
-        return
-    key = f"design disks {diameter} {[led.to_dict() for led in press.leds]}"
-    if not diameter > 0 or not said_once.first_time(key):
-        return
-    ref = press.reference
-    if ref is None:  # no undeformed surface to judge on
-        return
-    rows, cols = np.nonzero(np.isfinite(ref.depth))
-    step = max(1, rows.size // DESIGN_DISK_SAMPLES)  # every k-th gel pixel: deterministic, ~1000 samples
-    rows, cols = rows[::step], cols[::step]
-    points = depth_to_points(ref.depth[rows, cols], press.camera.rays[rows, cols])
-    spread = point_led_spread(points, ref.normals[rows, cols], press.leds, diameter / 2)
-    if spread > tolerances.POINT_LED_SPREAD_FOR_DISKS:
-        log.warning(
-            "%s: its design's %.1f mm LEDs, solved as points, miss their own light unevenly over this gel (by %.1f %% "
-            "rms, above %.1f %%): model them as disks, `nlips solve --led-model disks` (the twin's flat pad: contact "
-            "AAE 0.89 -> 0.24 deg), or calibrate them, `nlips calibrate-leds REFERENCE --out leds.json`, then --leds "
-            "leds.json --led-model disks (`nlips calibrate` too)",
-            press.folder,
-            diameter,
-            100 * spread,
-            100 * tolerances.POINT_LED_SPREAD_FOR_DISKS,
         )
 
 

@@ -281,24 +281,93 @@ def test_solve_led_model_disks_without_a_file_takes_the_designs_led_size(rim_sph
     assert not (sizeless / "nlips").exists()
 
 
-def test_a_solve_with_the_designs_point_leds_is_told_of_disks_where_they_miss_unevenly(
-    rim_sphere, tmp_path, caplog, monkeypatch
-):
-    """The flat pad's design LEDs as points cost its cube press 0.89 deg against 0.24 as disks: a solve with the
-    capture's own point LEDs on a design whose gel they light beyond ``POINT_LED_SPREAD_FOR_DISKS`` says to solve
-    with ``--led-model disks`` (or to calibrate). The rim view sees the gel down to the LEDs' height (a spread of
-    0.014; the gel-filling default view 0.0072, below the level): told; not for a disk solve, nor below the level."""
+@pytest.fixture(scope="module")
+def flat_cube(tmp_path_factory):
+    """The flat pad (gel 8 mm from its 3.6 mm disk LEDs) at 160x120: a 5 mm cube pressed 1 mm at polar 25 deg."""
+    pytest.importorskip("mitsuba")
+    from nlipscalib.core import load_press
+    from nlipscalib.sim.indent import PressConfig
+    from nlipscalib.sim.indenters import IndenterConfig
+    from nlipscalib.sim.press import render_press
+    from nlipscalib.sim.scene import load_scene
+
+    scene = load_scene("flat").replace(camera={"width": 160, "height": 120})
+    press = PressConfig(indenter=IndenterConfig(kind="cube", size=5.0), polar_deg=25.0, depth=1.0)
+    return load_press(render_press(scene, press, tmp_path_factory.mktemp("flat") / "cube", seed=3))
+
+
+def _solve(folder, out, *args: str) -> tuple[dict, np.ndarray]:
+    """``nlips solve FOLDER ARGS``: the recorded solver keywords and the solved depth."""
+    import json
+
     from nlipscalib.cli import main
+    from nlipscalib.core.reconstruction import load_reconstruction
+
+    assert main(["--no-progress", "solve", str(folder), *args, "--no-figures", "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    return report["provenance"]["settings"]["solver_keywords"], load_reconstruction(out).depth
+
+
+def test_the_flat_pads_own_leds_are_solved_as_its_designs_disks_by_default(flat_cube, tmp_path, caplog):
+    """``--led-model auto`` (the default): the flat pad's point LEDs miss its 3.6 mm disks unevenly over its gel
+    (spread 0.0145 > POINT_LED_SPREAD_FOR_DISKS), so a plain ``nlips solve`` is the ``--led-model disks`` solve,
+    bit for bit, and one INFO line says so and why; ``--led-model points`` still solves points."""
+    import logging
+
+    caplog.set_level(logging.INFO)
+    auto, auto_depth = _solve(flat_cube.folder, tmp_path / "auto")
+    lines = [r.getMessage() for r in caplog.records if "--led-model auto" in r.getMessage()]
+    assert len(lines) == 1 and "as disks of its design's 3.6 mm" in lines[0] and "above 1.2 %" in lines[0], lines
+    disks, disks_depth = _solve(flat_cube.folder, tmp_path / "disks", "--led-model", "disks")
+    assert auto["led_radius"] == disks["led_radius"] == RADIUS
+    np.testing.assert_array_equal(auto_depth, disks_depth)
+    points, points_depth = _solve(flat_cube.folder, tmp_path / "points", "--led-model", "points")
+    assert "led_radius" not in points
+    assert not np.array_equal(np.nan_to_num(points_depth), np.nan_to_num(auto_depth))
+
+
+def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tmp_path, caplog, monkeypatch):
+    """The hemisphere's own LEDs (spread 0.0072 in its gel-filling view) stay points: here the rim view's 0.014
+    against a level raised above it, which solves the ``--led-model points`` result bit for bit and says why at DEBUG
+    (-v); an LED file's LEDs are points under auto as before; a subset of the capture's own LEDs is judged too."""
+    import json
+    import logging
+
+    from nlipscalib.core import said_once, tolerances
+    from nlipscalib.pipeline.led_choice import auto_led_diameter
+
+    caplog.set_level(logging.INFO)
+    monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
+    auto, auto_depth = _solve(rim_sphere.folder, tmp_path / "auto")
+    assert not [r for r in caplog.records if "--led-model auto" in r.getMessage()]  # points as ever: nothing new
+    caplog.set_level(logging.DEBUG, logger="nlipscalib")
+    with said_once.scope():
+        assert auto_led_diameter(rim_sphere.folder) == 0.0
+    (line,) = [r for r in caplog.records if "--led-model auto" in r.getMessage()]  # -v: why points
+    assert line.levelname == "DEBUG" and "LEDs solved as points" in line.getMessage(), line.getMessage()
+    assert "not above 2.0 %" in line.getMessage(), line.getMessage()
+    points, points_depth = _solve(rim_sphere.folder, tmp_path / "points", "--led-model", "points")
+    assert "led_radius" not in auto and auto == points
+    np.testing.assert_array_equal(auto_depth, points_depth)
+    leds = [led.to_dict() for led in rim_sphere.leds]
+    led_file = tmp_path / "leds.json"
+    led_file.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": leds}}), encoding="utf-8")
+    monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.012)
+    with_file, _ = _solve(rim_sphere.folder, tmp_path / "file", "--leds", str(led_file))
+    assert "led_radius" not in with_file
+    subset, _ = _solve(rim_sphere.folder, tmp_path / "subset", "--leds", "1,2,3,4,5,6,7,8")
+    assert subset["led_radius"] == RADIUS
+
+
+def test_calibrate_records_disks_where_auto_solves_disks_and_nothing_where_points(rim_sphere, tmp_path, monkeypatch):
+    """``nlips calibrate``'s dataset record names ``led_model`` only for disk solves: "auto" on a design whose point
+    LEDs miss its disks unevenly records "disks" (the labels change), on one below the level nothing (the point
+    datasets keep their records, so they are not rebuilt)."""
+    from nlipscalib.cli.calibration import _solves_disks
     from nlipscalib.core import tolerances
 
-    def hints(*args: str) -> list[str]:
-        caplog.clear()
-        out = tmp_path / f"out{len(list(tmp_path.iterdir()))}"
-        assert main(["--no-progress", "solve", str(rim_sphere.folder), *args, "--no-figures", "--out", str(out)]) == 0
-        return [r.getMessage() for r in caplog.records if "miss their own light" in r.getMessage()]
-
-    (hint,) = hints("--roi", "auto")
-    assert hint.startswith(f"{rim_sphere.folder}: its design's 3.6 mm LEDs") and "--led-model disks" in hint, hint
-    assert hints("--roi", "auto", "--led-model", "disks") == []
+    folder = rim_sphere.folder
+    assert _solves_disks("auto", None, folder) and _solves_disks("disks", None, folder)
+    assert not _solves_disks("points", None, folder)
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
-    assert hints("--roi", "auto") == []
+    assert not _solves_disks("auto", None, folder)
