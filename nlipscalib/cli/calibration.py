@@ -127,7 +127,6 @@ def run(args: argparse.Namespace) -> int:
     from ..core.press_folders import is_press_folder, no_presses_error, split_reference
     from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
-    from ..pipeline.settings import disk_leds
     from ..progress import BATCH, press_lines
     from .folders import check_one_capture, check_undeformed, remove_if_left_empty
 
@@ -179,8 +178,8 @@ def run(args: argparse.Namespace) -> int:
     responses_agree(reference, presses)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
-    if args.led_model == "disks":  # no LED file, or one without disks: one line now, not after the hold
-        disk_leds(args.leds)
+    if args.led_model == "disks":  # an LED file without disks, or a design of no LED size: one line now, not later
+        _check_disks(args.leds, reference)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_own_folder(out, presses, root / DEFAULT_DIR)
     check_can_make(out)  # a file in its place or a read-only disk: one line now, not after solving every press
@@ -222,6 +221,19 @@ def check_own_folder(out: Path, presses: list[Path], default: Path) -> None:
         f"--out {out}: {what}; the calibration dataset needs a folder of its own (default {default}): "
         "give another --out, or leave it out"
     )
+
+
+def _check_disks(leds: str | None, reference: Path) -> None:
+    """ConfigError in one line, before the hold and any solve, where ``--led-model disks`` cannot solve: an LED file
+    without fitted disks, or (no LED file: the capture's own LEDs as its design's disks, as ``nlips solve``) a
+    reference whose design declares no LED size, naming its meta.json (the presses are of its design,
+    ``reference_fits``)."""
+    from ..pipeline.settings import disk_leds, for_press, make_settings
+
+    if leds is not None:
+        disk_leds(leds)
+    else:
+        for_press(reference, make_settings(led_model="disks"))
 
 
 def _solves_disks(led_model: str, leds: str | None, reference: Path) -> bool:

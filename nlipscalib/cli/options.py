@@ -46,8 +46,7 @@ def add_led_model(parser: argparse.ArgumentParser) -> None:
         "flat pad, oblate and capsule designs: the flat pad's cube press 0.89 -> 0.24 deg), as points otherwise "
         "(the hemisphere, fingertip); one INFO line says so where it picks disks (-v: why points). points: always "
         "points. disks: --leds FILE's fitted disks (~1.1x the solve's CPU; for a view that sees the gel beside the "
-        "LEDs, where points misplace the whole gel's depth by up to 0.1 mm), or without it (solve only) the "
-        "design's disks",
+        "LEDs, where points misplace the whole gel's depth by up to 0.1 mm), or without it the design's disks",
     )
 
 

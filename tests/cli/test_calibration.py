@@ -237,9 +237,9 @@ def test_a_torn_index_is_named_by_train_with_its_remedy_and_calibrate_writes_it_
 
 def test_calibrate_led_model_disks_solves_every_label_press_with_the_led_files_disks(session, tmp_path, capsys):
     """`nlips calibrate --led-model disks` (as `nlips solve --led-model disks`): every press solved with the LED
-    file's disks, recorded in its result's settings, so a default run solves it again with points; no LED file, or
-    one without disks, is one line before any solving. Before s32-diskmodel calibrate had no --led-model: its labels
-    came from point LEDs whatever the view."""
+    file's disks, recorded in its result's settings, so a default run solves it again with points; an LED file
+    without disks, or no LED file on a capture whose design declares no LED size, is one line before any solving.
+    Before s32-diskmodel calibrate had no --led-model: its labels came from point LEDs whatever the view."""
     _, leds = session
     root = tmp_path / "presses"
     synth.make_press(root / "reference", "none", size=SIZE)
@@ -252,7 +252,7 @@ def test_calibrate_led_model_disks_solves_every_label_press_with_the_led_files_d
     no_disks.write_text(json.dumps({k: v for k, v in calibrated.items() if k != "emitters"}), encoding="utf-8")
     capsys.readouterr()
     for given, problem in (
-        ([], "--led-model disks needs --leds FILE"),
+        ([], f"{root / 'reference' / 'meta.json'}: no sensor design recorded: --led-model disks without --leds"),
         (["--leds", str(no_disks)], f"{no_disks}: no disk LEDs fitted"),
     ):
         assert main(["calibrate", str(root), *given, "--led-model", "disks", "--workers", "1", "--no-progress"]) == 2
@@ -269,6 +269,37 @@ def test_calibrate_led_model_disks_solves_every_label_press_with_the_led_files_d
     assert radius() == 1.8
     assert main(command) == 0  # the same LED file's points: solved again, not the disks' result reused
     assert radius() is None
+
+
+def test_calibrate_led_model_disks_without_an_led_file_takes_the_designs_led_size(tmp_path, monkeypatch):
+    """`nlips calibrate --led-model disks` without --leds solves each press's own LEDs as disks of its design's
+    declared size, as `nlips solve --led-model disks` (pipeline.settings.for_press), and the dataset's record says
+    led_model "disks" (another build of point labels into the folder is told apart). It was refused ("needs --leds
+    FILE") although --led-model auto could pick those disks."""
+    from nlipscalib.learn import dataset
+
+    root = tmp_path / "presses"
+    for name, kind in (("reference", "none"), ("press_0001", "sphere")):
+        synth.make_press(root / name, kind, size=SIZE)
+        meta = json.loads((root / name / "meta.json").read_text(encoding="utf-8"))
+        meta["design"] = {"leds": {"emitter_diameter": 3.6}}  # a device capture's design: its LEDs' size only
+        (root / name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    runs = []
+    real = dataset.dataset_run
+
+    def recorded(*args, **kwargs) -> dict:
+        runs.append(real(*args, **kwargs))
+        return runs[-1]
+
+    monkeypatch.setattr(dataset, "dataset_run", recorded)
+    assert main(["calibrate", str(root), "--led-model", "disks", "--workers", "1", "--no-progress"]) == 0
+    report = json.loads((root / "press_0001" / "nlips" / "report.json").read_text(encoding="utf-8"))
+    keywords = report["provenance"]["settings"]["solver_keywords"]
+    assert keywords["led_radius"] == 1.8 and keywords["emitters"] is None
+    assert runs[-1]["options"]["led_model"] == "disks" and runs[-1]["options"]["leds"] is None
+    assert (root / "calibration" / "index.json").is_file()
+    assert main(["calibrate", str(root), "--led-model", "points", "--workers", "1", "--no-progress"]) == 0
+    assert "led_model" not in runs[-1]["options"]  # point labels keep their record
 
 
 def test_an_interrupted_calibrate_leaves_no_empty_dataset_folder_and_runs_again(session, tmp_path, monkeypatch):
