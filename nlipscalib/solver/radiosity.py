@@ -4,15 +4,21 @@ Physics followed: the radiosity equation for Lambertian surfaces (Goral, Torranc
 Battaile, "Modeling the interaction of light between diffuse surfaces", SIGGRAPH 1984; Cohen &
 Wallace, *Radiosity and Realistic Image Synthesis*, 1993, ch. 2), truncated after one or two bounces
 (the Neumann series of the radiosity operator, each term one more bounce), with the point-to-patch
-form factor ``cos_p cos_q A_q / (pi r^2)`` and no visibility test (a smooth dent in a concave dome
-barely occludes itself; the cosines cut back faces). The same one-bounce term is what Nayar, Ikeuchi
-& Kanade ("Shape from interreflections", IJCV 1991) add to photometric stereo.
+form factor ``cos_p cos_q A_q / (pi r^2)`` times the pair's visibility V_pq in {0, 1} (the cosines cut back
+faces). The surface is a depth map over the image, so V is a screen-space test against it (:func:`_hidden`): a
+pair is hidden where a patch between them on the image stands on the camera's side of their segment. The
+undeformed dome, concave as the camera sees it, hides nothing (its gathers are those without the test, bit
+for bit); a bump pressed 1.5 mm proud of the gel hides, from its flanks, part of the gel beyond it, whose light
+the term without V over-counted by ~1.5 % of the direct light of the LEDs on the contact's side and leaned the
+solved normals outward (docs/experiments/RESULTS.md, issue 6). The dome beyond the view is not tested (seen from
+every patch). The same one-bounce term is what Nayar, Ikeuchi & Kanade ("Shape from interreflections", IJCV
+1991) add to photometric stereo.
 
 In linear image units (``Press.linear`` = exposure * a/pi * irradiance, so rho = exposure * a/pi up to
 the LED intensity gauge), light leaving patch q with linear value D_q = rho_q S_q (direct shading S of
 :func:`nlipscalib.core.leds.led_shading`) reaches receiver p and leaves it as::
 
-    B(p) = (a_p / pi) * sum_q D_q max(0, n_p . w_pq) max(0, n_q . w_qp) A_q / r_pq^2
+    B(p) = (a_p / pi) * sum_q D_q V_pq max(0, n_p . w_pq) max(0, n_q . w_qp) A_q / r_pq^2
 
 The receiver's dimensionless reflectance a_p is proportional to its linear albedo (a_p = kappa rho_p,
 kappa = pi / exposure in the LED gauge), so ``B(p) = kappa rho_p G(p)`` with
