@@ -419,9 +419,13 @@ def _proud(grid: np.ndarray) -> np.ndarray:
     :data:`~nlipscalib.core.tolerances.VISIBILITY_HEIGHT_MM` on the camera's side of the segment between their
     neighbours k patches away on either side (k of :data:`PROUD_SCALES`, along the rows, columns or diagonals).
 
-    Only such a patch can hide a pair: the point of a surface that stands farthest on the camera's side of a
-    segment stands so above its own neighbours along it too. A concave surface seen from inside (the undeformed
-    dome) or a flat one has none, and its gathers test no pair."""
+    Why: the point of a surface that stands farthest on the camera's side of a segment stands above its own
+    neighbours along it too, at some scale; :func:`_hidden` samples only the box of these patches. Four directions
+    and these scales are a sampling of that, not a proof: on the bench's true sphere, coin and cube surfaces
+    (the dent's patches, every emitter) the pairs that 6 samples over the whole segment hid and the box's samples
+    did not carried 0.1 %, 0.7 % and 0.05 % of the light (the box's denser samples hid more than that beside). A
+    concave surface seen from inside (the undeformed dome) or a flat one has none, and its gathers test no
+    pair."""
     h2, w2 = grid.shape[:2]
     proud = np.zeros((h2, w2), bool)
     tol = np.float32(tolerances.VISIBILITY_HEIGHT_MM)
@@ -528,7 +532,9 @@ def _clip(
 
 
 VISIBILITY_SAMPLES = 6
-"""Points of each pair's segment :func:`_hidden` tests (evenly spaced between the two patches on the grid)."""
+"""Points of each pair's grid line :func:`_hidden` tests, evenly spaced over its part in :attr:`Occluders.box`
+(against 32 there, 6 left out 15 % of the light that 32 hid on the bench's true sphere, 20 % on the coin's wall;
+4: 21 % and 28 %, for 20 % less time)."""
 
 
 Seen = tuple[Occluders, np.ndarray]
