@@ -533,7 +533,7 @@ def _clip(
 
 VISIBILITY_SAMPLES = 6
 """Points of each pair's grid line :func:`_hidden` tests, evenly spaced over its part in :attr:`Occluders.box`
-(against 32 there, 6 left out 15 % of the light that 32 hid on the bench's true sphere, 20 % on the coin's wall;
+(against 32 there, 6 left out 15 % of the light that 32 hid on the bench's true sphere's dent, 20 % on the coin's;
 4: 21 % and 28 %, for 20 % less time)."""
 
 
