@@ -94,6 +94,11 @@ was within 1e-2 (max) / 1e-3 (median) of the exact gather, the undeformed dome's
 sphere is the degenerate case where the form factor does not depend on the distance), and contact and all-pixel
 AAE within 0.0013 deg of the exact gather's, whole frame and auto ROI (benchmarks/RESULTS.md), with a fifth of
 the pairwise terms. 0.15 halves the error for 1.7 times the terms."""
+VISIBILITY_HEIGHT_MM = 0.05
+"""The interreflection gather's visibility test (:func:`nlipscalib.solver.radiosity._hidden`): a surface patch
+between two others hides them from each other when it stands more than this (mm) on the camera's side of their
+segment. Why a margin: patch centroids lie a little off the surface they average, and a solved surface's noise
+ripples by hundredths of a millimetre; a flat or concave surface then never hides itself."""
 INDIRECT_PATCH_USABLE = 0.99
 """Interreflection fit (:func:`nlipscalib.solver.indirect.fit_indirect`): a patch enters the fit, for an LED and
 a channel, only when more than this share of its area is usable (on the gel, unsaturated, its LED lit, outside

@@ -392,11 +392,23 @@ class Surface:
         return new
 
     def emitters(self) -> dict:
+        """The kept patches as a gather's emitters (points, normals, area, and their cells on the patch grid)."""
         k = self.keep
-        return {key: self.patches[key][k] for key in ("points", "normals", "area")}
+        out = {key: self.patches[key][k] for key in ("points", "normals", "area")}
+        out["cells"] = radiosity.patch_cells(k)
+        return out
 
     def receivers(self) -> tuple[np.ndarray, np.ndarray]:
         return self.patches["points"][self.keep], self.patches["normals"][self.keep]
+
+    def seen(self) -> dict:
+        """The keywords of a gather among the kept patches that leaves out the pairs this surface hides from each
+        other (:class:`radiosity.Occluders`): the occluders and the receivers' cells."""
+        area = np.where(self.keep, self.patches["area"], 0.0)
+        return {
+            "occluders": radiosity.Occluders.of(self.patches["points"], area),
+            "cells": radiosity.patch_cells(self.keep),
+        }
 
 
 def _patch_window(pixels: np.ndarray, size: int) -> tuple[slice, slice, tuple[slice, slice]]:
@@ -444,7 +456,7 @@ def _surface_factors(cache: dict) -> radiosity.FormFactors:
     rough fit and refit: four gathers) gathers over the same patches, only their light changes."""
     if "factors" not in cache:
         surf = cache["surface"]
-        cache["factors"] = radiosity.FormFactors(*surf.receivers(), surf.emitters())
+        cache["factors"] = radiosity.FormFactors(*surf.receivers(), surf.emitters(), **surf.seen())
     return cache["factors"]
 
 
@@ -981,6 +993,9 @@ def _gather_at(surf: Surface, rho_patch: np.ndarray, model: IndirectModel, want:
     if off is not None:
         off_direct = term_shading(off["points"], off["normals"], surf.leds, surf.radius)
         off_direct = off_direct * np.asarray(model.off_view_albedo)
+        # the dome beyond the view is seen from every patch (no visibility test): its segments leave the view, and
+        # the undeformed dome there hides nothing; on the bench's sphere press the dent hid 0.06 % of its light at
+        # the dent's patches (2 % at most), and testing it took 8 times the gather's time (0.15 against 0.012 s)
         g = g + radiosity.gather(points[want], normals[want], off, off_direct)
     if model.bounces >= 2:
         # second bounce: the first bounce's light over the whole visible surface, gathered again

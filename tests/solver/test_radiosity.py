@@ -31,10 +31,16 @@ def _dome(h: int = 40, w: int = 52, dent: float = 0.0) -> dict:
     return {"points": points, "normals": normals, "area": area, "radiance": radiance}
 
 
-def _exact(s: dict, receivers: np.ndarray) -> np.ndarray:
+def _exact(s: dict, receivers: np.ndarray, visibility: bool = True) -> np.ndarray:
+    """The exact gather of every patch at ``receivers``, leaving out the pairs the grid's surface hides as
+    :func:`radiosity.gather_grid` does by default (``visibility``)."""
     emit = {"points": s["points"].reshape(-1, 3), "normals": s["normals"].reshape(-1, 3), "area": s["area"].ravel()}
     light = s["radiance"].reshape(s["radiance"].shape[0], -1, 3)
-    return radiosity.gather(s["points"][receivers], s["normals"][receivers], emit, light)
+    seen = {}
+    if visibility:
+        emit["cells"] = radiosity.patch_cells(np.ones(s["area"].shape, bool))
+        seen = {"occluders": radiosity.Occluders.of(s["points"], s["area"]), "cells": radiosity.patch_cells(receivers)}
+    return radiosity.gather(s["points"][receivers], s["normals"][receivers], emit, light, **seen)
 
 
 def _grid(s: dict, receivers: np.ndarray, **kwargs) -> np.ndarray:
@@ -113,11 +119,12 @@ def test_grouped_gather_on_a_domes_inside_matches_the_exact_one(monkeypatch):
 def test_grouped_gather_on_a_dent_stays_within_the_aggregates_error():
     """A dent 1 mm deep: the aggregates' error is of the order of the squared radius-to-distance ratio of a
     cluster (0.06) times the share of the light from near the dent; measured here 1.3e-2 at most and 2.6e-3 in the
-    median, on the twin's solved 640x480 surfaces 1e-2 and 1e-3."""
+    median, on the twin's solved 640x480 surfaces 1e-2 and 1e-3. Without the visibility test (its own error, a
+    cluster seen or hidden whole, is :func:`test_grouped_gather_with_visibility_stays_near_the_exact_one`'s)."""
     s = _dome(dent=1.0)
     everywhere = np.ones(s["area"].shape, bool)
-    exact = _exact(s, everywhere)
-    rel = np.abs(_grid(s, everywhere) - exact) / np.abs(exact)
+    exact = _exact(s, everywhere, visibility=False)
+    rel = np.abs(_grid(s, everywhere, visibility=False) - exact) / np.abs(exact)
     assert rel.max() < tolerances.GATHER_CLUSTER_RATIO**2 / 3  # 2.1e-2
     assert np.median(rel) < 5e-3
     assert rel.max() > 1e-4  # the premise: the dent is what the aggregates miss
@@ -188,7 +195,7 @@ def test_patches_without_area_neither_emit_nor_receive(dent):
     emits = s["area"] > 0
     emit = {"points": s["points"][emits], "normals": s["normals"][emits], "area": s["area"][emits]}
     exact = radiosity.gather(s["points"][emits], s["normals"][emits], emit, s["radiance"][:, emits])
-    grouped = _grid(s, emits)
+    grouped = _grid(s, emits, visibility=False)  # the holes alone: the aggregates' error, not the visibility's
     assert grouped.shape == exact.shape
     assert np.abs(grouped - exact).max() / np.abs(exact).max() < 2e-2
     assert np.isfinite(grouped).all()
@@ -196,7 +203,9 @@ def test_patches_without_area_neither_emit_nor_receive(dent):
 
 def test_a_surfaces_indirect_light_groups_far_patches(tmp_path, monkeypatch):
     """surface_indirect gathers the visible surface's light with far patches grouped: fewer terms than receivers x
-    emitters, the light within the aggregates' error of the exact gather's (ratio 0)."""
+    emitters, the light within the aggregates' error of the exact gather's (ratio 0). 3e-2: with the visibility
+    test (both gathers) a far cluster is seen or hidden whole, 2.1e-2 at most at the edge of what the bump hides
+    (2e-2 before the test)."""
     from nlipscalib.core import load_press
     from nlipscalib.solver.indirect import IndirectModel, surface_indirect
 
@@ -217,7 +226,7 @@ def test_a_surfaces_indirect_light_groups_far_patches(tmp_path, monkeypatch):
     monkeypatch.setattr(tolerances, "GATHER_CLUSTER_RATIO", 0.0)
     exact = light()
     lit = exact > 0.01 * exact.max()
-    np.testing.assert_allclose(grouped[lit], exact[lit], rtol=2e-2)
+    np.testing.assert_allclose(grouped[lit], exact[lit], rtol=3e-2)
 
 
 def test_patch_means_have_the_bits_of_the_broadcast_weights():
