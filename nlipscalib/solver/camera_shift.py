@@ -30,6 +30,14 @@ the error is at most 0.38 px whatever the move (0.5-3 px), so ``tolerances.CAMER
 phase correlation (Hanning window) and ECC were measured again and dropped: a log-linear shading moved along its slope
 is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-210 px off per
 LED) and phase correlation follows the window and the dent (benchmarks/RESULTS.md, s42-shift1px).
+
+That 0.38 px was the dent's light spread over the gel (1): under each LED alone a shift of 1-3 px along the LED's own
+direction (where its shading brightens), unequal between opposite LEDs. Leaving out more of the gel around the dent
+does not help (the change spans the gel: its deformed part grown by 160 px still read 0.35 px off), so each LED's
+shift along its own direction is fitted as its own and the camera's is read from the rest, across the LEDs
+(:data:`SHIFT_OWN_KEPT`): the fingertip's cube presses 0.38 -> 0.24 px, the hemisphere's 0.30 -> 0.25, the bench's
+coin 0.20 -> 0.07 (docs/experiments/RESULTS.md, s43-shiftdent). The LEDs' true azimuths instead of the shading's
+direction read 0.34, the directions of most evidence 1.5: the direction must be the shading's.
 """
 
 from __future__ import annotations
@@ -78,7 +86,7 @@ SHIFT_OWN_KEPT = 0.5
 Why: a dent changes the shading outside its contact (its light spread over the gel), under each LED alone as a shift
 of 1-3 px along the LED's own direction, unequal between opposite LEDs; the joint fit kept their imbalance (q3's
 fingertip cubes read 0.38 px off, the hemisphere's 0.30). Each LED's shift along its direction fitted as its own, the
-camera's is read from the rest: 0.25 and 0.24 (s43-shiftdent). Where the dent leaves under half the gel (a flat
+camera's is read from the rest: 0.24 and 0.25 (s43-shiftdent). Where the dent leaves under half the gel (a flat
 pad's cube: 19-31 % kept) the rest is the dent's fringe, not spread light, and that rest alone read the flat pad's
 cube presses 0.48 px off (0.14 with the joint fit), so they keep the joint fit."""
 SHIFT_CHANGE_GROW = 2
