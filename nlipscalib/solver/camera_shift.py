@@ -128,7 +128,10 @@ def camera_shift(
         kept = inner & ~changed_blocks(ref, _moved(img, shift), inner, block)
         if kept.sum() < 100:
             break
-        shift = _fit(ref, img, kept, shift, own=kept.sum() >= SHIFT_OWN_KEPT * inner.sum())
+        # each LED's own shift needs three directions at least: two opposite LEDs' are one line, along which the
+        # camera's would go unread
+        own = len(img) >= 3 and kept.sum() >= SHIFT_OWN_KEPT * inner.sum()
+        shift = _fit(ref, img, kept, shift, own=own)
     return float(shift[0] * block), float(shift[1] * block)
 
 

@@ -142,3 +142,13 @@ def test_a_dent_whose_light_spread_reads_as_a_shift_along_each_led_is_read_to_a_
         images = _shading(shape, shift, dent, seed=2, spread=(1.5, 0.6, 0.4, 1.2))
         dx, dy = camera_shift(reference, images, np.ones(shape, bool))
         assert np.hypot(dx - shift[0], dy - shift[1]) < 0.2, (shift, dx, dy)
+
+
+def test_two_opposite_leds_read_a_move_along_their_line():
+    """Each LED's own shift along its direction needs three directions: two opposite LEDs' are one line, and fitted,
+    their own shifts took the camera's along it (1 px right read 0.84, in place -0.12)."""
+    shape = (240, 320)
+    reference = _shading(shape, seed=1)[[0, 2]]
+    for shift in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]:
+        dx, dy = camera_shift(reference, _shading(shape, shift, seed=2)[[0, 2]], np.ones(shape, bool))
+        assert np.hypot(dx - shift[0], dy - shift[1]) < 0.05, (shift, dx, dy)
