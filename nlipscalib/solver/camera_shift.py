@@ -30,6 +30,14 @@ the error is at most 0.38 px whatever the move (0.5-3 px), so ``tolerances.CAMER
 phase correlation (Hanning window) and ECC were measured again and dropped: a log-linear shading moved along its slope
 is the same image less an offset, so ECC's gain and offset invariance leaves the move unobservable (70-210 px off per
 LED) and phase correlation follows the window and the dent (benchmarks/RESULTS.md, s42-shift1px).
+
+That 0.38 px was the dent's light spread over the gel (1): under each LED alone a shift of 1-3 px along the LED's own
+direction (where its shading brightens), unequal between opposite LEDs. Leaving out more of the gel around the dent
+does not help (the change spans the gel: its deformed part grown by 160 px still read 0.35 px off), so each LED's
+shift along its own direction is fitted as its own and the camera's is read from the rest, across the LEDs
+(:data:`SHIFT_OWN_KEPT`): the fingertip's cube presses 0.38 -> 0.24 px, the hemisphere's 0.30 -> 0.25, the bench's
+coin 0.20 -> 0.07 (docs/experiments/RESULTS.md, s43-shiftdent). The LEDs' true azimuths instead of the shading's
+direction read 0.34, the directions of most evidence 1.5: the direction must be the shading's.
 """
 
 from __future__ import annotations
@@ -73,6 +81,14 @@ allowance to be the dent's."""
 SHIFT_NOISE_FLOOR = 1e-3
 """The least noise (log, per block) :func:`changed_blocks` assumes: exact or 16-bit images hold almost none, and a
 most common change needs a window of some width."""
+SHIFT_OWN_KEPT = 0.5
+"""Share of the measured blocks the dent must leave for each LED's own shift along its direction to be fitted too.
+Why: a dent changes the shading outside its contact (its light spread over the gel), under each LED alone as a shift
+of 1-3 px along the LED's own direction, unequal between opposite LEDs; the joint fit kept their imbalance (q3's
+fingertip cubes read 0.38 px off, the hemisphere's 0.30). Each LED's shift along its direction fitted as its own, the
+camera's is read from the rest: 0.24 and 0.25 (s43-shiftdent). Where the dent leaves under half the gel (a flat
+pad's cube: 19-31 % kept) the rest is the dent's fringe, not spread light, and that rest alone read the flat pad's
+cube presses 0.48 px off (0.14 with the joint fit), so they keep the joint fit."""
 SHIFT_CHANGE_GROW = 2
 """Blocks the dent's changed blocks are grown by: its fringe, changed by less than the noise bound, goes with it."""
 
@@ -112,30 +128,54 @@ def camera_shift(
         kept = inner & ~changed_blocks(ref, _moved(img, shift), inner, block)
         if kept.sum() < 100:
             break
-        shift = _fit(ref, img, kept, shift)
+        # each LED's own shift needs three directions at least: two opposite LEDs' are one line, along which the
+        # camera's would go unread
+        own = len(img) >= 3 and kept.sum() >= SHIFT_OWN_KEPT * inner.sum()
+        shift = _fit(ref, img, kept, shift, own=own)
     return float(shift[0] * block), float(shift[1] * block)
 
 
-def _fit(ref: np.ndarray, img: np.ndarray, kept: np.ndarray, shift: np.ndarray) -> np.ndarray:
-    """(2,) blocks -- Gauss-Newton from ``shift`` on the ``kept`` blocks of :func:`log_blocks` ``ref`` and ``img``."""
+def _fit(ref: np.ndarray, img: np.ndarray, kept: np.ndarray, shift: np.ndarray, own: bool = True) -> np.ndarray:
+    """(2,) blocks -- Gauss-Newton from ``shift`` on the ``kept`` blocks of :func:`log_blocks` ``ref`` and ``img``;
+    with ``own``, each LED's shift along its own direction fitted too (:data:`SHIFT_OWN_KEPT`)."""
     gy, gx = np.gradient(ref, axis=(1, 2))
     gx, gy = gx[:, kept], gy[:, kept]
+    gu = None
+    if own:
+        # each LED's own direction: where its shading brightens, its mean log gradient; a dent's light spread over
+        # the gel reads under each LED as a shift along it (s42-shift1px), so that part of its evidence is its own
+        toward = np.stack([gx.mean(1), gy.mean(1)], 1)
+        toward /= np.linalg.norm(toward, axis=1, keepdims=True) + 1e-12
+        gu = toward[:, :1] * gx + toward[:, 1:] * gy
     shift = np.array(shift, float)
     for _ in range(SHIFT_ITERATIONS):
         res = (_moved(img, shift) - ref)[:, kept]
         step, weight = np.zeros(2), np.ones_like(res)
-        # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
-        cx, cy, cr = _centred((gx, gy, res), weight)
+        # an offset per LED (its log: an exposure or gain change) and a shift of its own along its direction, fitted
+        # with the step: each term centred, then less its part along the LED's direction
+        cx, cy, cr = _own_terms_out((gx, gy, res), gu, weight)
         for _ in range(SHIFT_REWEIGHTS):  # weights of what the step leaves: the shift's own residual is not an outlier
             left = cr - step[0] * cx - step[1] * cy
             scale = 1.4826 * float(np.median(np.abs(left))) + 1e-9
             weight = 1.0 / (1.0 + (left / (3.0 * scale)) ** 2)  # Cauchy: the dent's pixels count little
-            cx, cy, cr = _centred((gx, gy, res), weight)
+            cx, cy, cr = _own_terms_out((gx, gy, res), gu, weight)
             wx, wy = weight * cx, weight * cy
             normal = np.array([[np.sum(wx * cx), np.sum(wx * cy)], [np.sum(wx * cy), np.sum(wy * cy)]])
             step = np.linalg.solve(normal, np.array([np.sum(wx * cr), np.sum(wy * cr)]))
         shift -= step
     return shift
+
+
+def _own_terms_out(values: tuple[np.ndarray, ...], along: np.ndarray | None, weight: np.ndarray) -> list[np.ndarray]:
+    """Each of ``values`` (L, N) less, per row (each LED's blocks), its ``weight``-ed mean and its ``weight``-ed least
+    squares part along ``along`` (L, N) (centred too; None: none): the LED's offset and its own shift along its
+    direction eliminated from the shift's normal equations (a Schur complement: the shift fitting them jointly finds).
+    """
+    if along is None:
+        return _centred(values, weight)
+    (along,) = _centred((along,), weight)
+    power = (weight * along * along).sum(1, keepdims=True) + 1e-12
+    return [v - (weight * v * along).sum(1, keepdims=True) / power * along for v in _centred(values, weight)]
 
 
 def _moved(img: np.ndarray, shift: np.ndarray) -> np.ndarray:
