@@ -546,7 +546,10 @@ def _write_samples(
     The samples' record (the task result's ``samples``, whence its dataset entry: :func:`dataset_entry`) carries the
     identity of the capture the labels were solved from (``capture_identity``, as ``nlips calibrate``'s: the label
     solve's ``provenance.inputs.press``), so a model trained or a table fitted on the experiment's dataset tells the
-    presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS)."""
+    presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS), and the press's
+    identity by content (``press_identity``, :mod:`nlipscalib.core.press_identity`), which tells the same press
+    rendered in another work folder as the same."""
+    from ..core.press_identity import IDENTITY_KEY, press_identity
     from ..learn.dataset import recorded_capture_identity
 
     if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
@@ -559,6 +562,7 @@ def _write_samples(
         "count": int(len(arrays["rgb"])),
         "contact": int(arrays["contact"].sum()),
         "has_truth": bool(press.ground_truth is not None),
+        IDENTITY_KEY: press_identity(press.folder),
     } | recorded_capture_identity(getattr(rec, "report", None))
     adapters.write_samples(path, arrays, dataset_entry(out, task, info))
     view = adapters.figure_view(press, reference, task.samples)
@@ -571,25 +575,32 @@ def dataset_entry(out: Path, task: Task, info: dict) -> dict:
     """A press task's entry in the experiment's calibration dataset (learn.dataset's index.json), from the
     ``samples`` record of its result; ``stamp``, the identity of its samples, is the task's hash (its press, scene,
     solves and sampling); ``capture_identity`` where the record holds it (:func:`_write_samples`; a task run before
-    2026-12-07 evening records none)."""
+    2026-12-07 evening records none); ``press_identity`` where it holds one (a task run before 2026-12-08 holds
+    none)."""
+    from ..core.press_identity import IDENTITY_KEY, is_identity
     from ..learn.dataset import CAPTURE_IDENTITY
 
     ind = task.press["indenter"]
     identity = info.get(CAPTURE_IDENTITY)
-    return {
-        "name": task.id,
-        "folder": str(Path(out) / "presses" / task.id),
-        "samples": info["count"],
-        "contact_samples": info["contact"],
-        "has_truth": info["has_truth"],
-        "press": {
-            "indenter": ind["kind"],
-            "polar_deg": task.press["polar_deg"],
-            "azimuth_deg": task.press["azimuth_deg"],
-            "depth_mm": task.press["depth"],
-        },
-        "stamp": task.hash,
-    } | ({CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {})
+    content = info.get(IDENTITY_KEY)
+    return (
+        {
+            "name": task.id,
+            "folder": str(Path(out) / "presses" / task.id),
+            "samples": info["count"],
+            "contact_samples": info["contact"],
+            "has_truth": info["has_truth"],
+            "press": {
+                "indenter": ind["kind"],
+                "polar_deg": task.press["polar_deg"],
+                "azimuth_deg": task.press["azimuth_deg"],
+                "depth_mm": task.press["depth"],
+            },
+            "stamp": task.hash,
+        }
+        | ({CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {})
+        | ({IDENTITY_KEY: content} if is_identity(content) else {})
+    )
 
 
 def _solve_one(
