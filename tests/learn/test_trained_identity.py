@@ -257,7 +257,7 @@ def test_eval_scores_the_presses_a_model_learnt_from_and_the_others_apart(solved
     old = tmp_path / "old.pt"  # as `nlips train` wrote it before 2026-12-07
     payload = torch.load(model, weights_only=True)
     payload["format_version"] = 1
-    for key in ("captures", "samples_key"):
+    for key in ("captures", "samples_key", "press_identities"):
         del payload["info"][key]
     torch.save(payload, old)
     err = _scored_together(old, presses, tmp_path / "old", capsys)
@@ -294,7 +294,7 @@ def test_a_lookup_table_records_the_captures_it_was_fitted_on_and_eval_scores_it
     assert "seen: 3 press(es), pooled AAE" in err and "unseen: 1 press(es), pooled AAE" in err
 
     old = tmp_path / "old.pt"  # as `nlips lut` wrote it before it recorded captures
-    del payload["info"]["captures"]
+    del payload["info"]["captures"], payload["info"]["press_identities"]
     torch.save(payload, old)
     err = _scored_together(old, presses, tmp_path / "old", capsys)
     assert err.count("seen and unseen presses not told apart") == 1 and "`nlips lut` and `nlips infer`" in err
