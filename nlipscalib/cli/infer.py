@@ -708,7 +708,8 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
                 steep(why, str(source))
             inner.append(result.seconds["total"])
             if folder is not None:
-                _save(args, predictor, result, name, folder, provenance, press_folder, source)
+                identity = getattr(load, "identity", None)  # an image frame's, taken as it was decoded
+                _save(args, predictor, result, name, folder, provenance, press_folder, source, identity)
     unlike.flush()
     steep.flush()
     if steep.count > STILLS_WARNED_IN_FULL:
@@ -985,8 +986,16 @@ class _EightBitNotice:
 
 def _image_loader(path: Path, eight_bit: Callable[[Path], None] | None) -> Callable[[Predictor], np.ndarray]:
     def load(predictor: Predictor) -> np.ndarray:
+        from ..core.press_identity import frame_identity
+        from ..learn.seen import IDENTITIES_KEY
+
         # the model's tone curve undone as the image is converted: an 8-bit one's in one 256-entry lookup
-        return predictor.linear(read_still(path, eight_bit, predictor.tone_curve), path, in_light=True)
+        stored = read_still(path, eight_bit, predictor.tone_curve)
+        if predictor.tone_curve is None and predictor.model.info.get(IDENTITIES_KEY):
+            # the stored values as decoded are the frame's identity (report trained_on): hashed here (~2 ms at
+            # 640x480), not decoded a second time when the result is saved (~12 ms a frame)
+            load.identity = frame_identity(stored)
+        return predictor.linear(stored, path, in_light=True)
 
     return load
 
@@ -1334,10 +1343,12 @@ def _save(
     provenance: dict,
     press_folder: Path | None,
     source: Path,
+    identity: dict | None = None,
 ) -> None:
     """Write ``result`` into ``folder`` (with its points.ply and figures when asked), recording ``provenance``;
     ``source``: the image file of a frame (a press's: its folder), whose identity by content is compared with the
-    presses the model learnt from (report ``trained_on``, :func:`_content_identity`).
+    presses the model learnt from (report ``trained_on``, :func:`_content_identity`); ``identity``: that identity
+    when the frame's loader took it already.
 
     The figures are ``nlips solve``'s (report.reconstruction, ``args.figures``): the normal map, the depth map as
     the indentation from the model's undeformed dome and, for a press with ground truth (a twin's gt.npz), the
@@ -1347,7 +1358,7 @@ def _save(
     from ..learn.ply import write_ply
     from ..report import write_reconstruction_figures
 
-    identity = _content_identity(predictor.model.info, press_folder, source)
+    identity = identity or _content_identity(predictor.model.info, press_folder, source)
     reconstruction = to_reconstruction(result, predictor, name, provenance, identity)
     _say_judged_by_meta(args.model, predictor.model.info, identity, reconstruction.report, press_folder)
 
