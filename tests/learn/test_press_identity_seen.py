@@ -198,3 +198,20 @@ def test_a_re_build_over_kept_shards_reads_none_for_the_index_and_still_notices_
     for shard in (changed, touched):
         assert records[shard.stem]["sha256"] == hashlib.sha256(shard.read_bytes()).hexdigest()
     assert CalibrationDataset(built).samples_changed(names) is None
+
+
+def test_a_reused_model_without_press_identities_is_said_of(model, built, tmp_path, caplog):  # noqa: F811
+    """`nlips train` re-run with the same options reuses the model; one trained before 2026-12-08 (no
+    press_identities) is reused with one warning of what its verdicts miss; this version's without."""
+    args = ["train", str(built), "--out", str(model), "--val-presses", VAL, "--exclude", HELD, *OPTIONS]
+    with caplog.at_level(logging.WARNING):
+        assert main(args) == 0
+    assert not [r for r in caplog.records if "meta.json's bytes too" in r.getMessage()]
+    payload = torch.load(model, weights_only=True)
+    del payload["info"]["press_identities"]
+    torch.save(payload, model)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert main(args) == 0
+    warned = [r.getMessage() for r in caplog.records if "meta.json's bytes too" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{model}: trained before 2026-12-08"), warned
