@@ -549,21 +549,23 @@ def _write_samples(
     presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS), and the press's
     identity by content (``press_identity``, :mod:`nlipscalib.core.press_identity`), which tells the same press
     rendered in another work folder as the same."""
-    from ..core.press_identity import IDENTITY_KEY, press_identity
-    from ..learn.dataset import recorded_capture_identity
+    from ..learn.dataset import press_identity_entry, recorded_capture_identity
 
     if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
         return {"file": None, "error": "the NLiPs label solve failed"}
     arrays = adapters.calibration_samples(press, rec, reference, task.samples)
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
-    info = {
-        "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
-        "count": int(len(arrays["rgb"])),
-        "contact": int(arrays["contact"].sum()),
-        "has_truth": bool(press.ground_truth is not None),
-        IDENTITY_KEY: press_identity(press.folder),
-    } | recorded_capture_identity(getattr(rec, "report", None))
+    info = (
+        {
+            "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
+            "count": int(len(arrays["rgb"])),
+            "contact": int(arrays["contact"].sum()),
+            "has_truth": bool(press.ground_truth is not None),
+        }
+        | recorded_capture_identity(getattr(rec, "report", None))
+        | press_identity_entry(press.folder)
+    )
     adapters.write_samples(path, arrays, dataset_entry(out, task, info))
     view = adapters.figure_view(press, reference, task.samples)
     if view:

@@ -677,7 +677,7 @@ class _Build:
             if kept is not None:  # resumed, or made meanwhile by another build of this dataset
                 self.kept.append(folder.name)
                 # a shard made before they were recorded: the identities now (the press's content, cached per stamp)
-                return kept | _capture_identity(folder / self.result_dir) | _press_identity(folder, kept)
+                return kept | _capture_identity(folder / self.result_dir) | press_identity_entry(folder, kept)
             return self.make(folder, shard, stamp)
 
     def make(self, folder: Path, shard: Path, stamp: str) -> dict:
@@ -693,23 +693,27 @@ class _Build:
         from ..core.press_meta import listed_files
 
         files = files_as_read(folder, listed_files(press.meta))  # before its files are read: what they were
-        identity = _press_identity(folder)  # what was captured (learn.seen), as sampled
+        identity = press_identity_entry(folder)  # what was captured (learn.seen), as sampled
         rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
         tricolor = press_tricolor_verdict(press, reordered(rec.report)).record()
         if disagrees(tricolor) and not self.keep_tricolor:  # to be left out (sort_presses): no shard, no samples
             return {"name": folder.name, "folder": str(folder.resolve()), TRICOLOR_KEY: tricolor}
         samples = press_samples(press, rec, self.ref, self.cfg)
-        entry = {
-            "name": folder.name,
-            "folder": str(folder.resolve()),
-            "samples": int(len(samples["rgb"])),
-            "contact_samples": int(samples["contact"].sum()),
-            "has_truth": bool(press.ground_truth is not None),
-            "press": press_description(press),
-            "stamp": stamp,
-            "files": files,
-            TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
-        } | _capture_identity(folder / self.result_dir, rec.report) | identity
+        entry = (
+            {
+                "name": folder.name,
+                "folder": str(folder.resolve()),
+                "samples": int(len(samples["rgb"])),
+                "contact_samples": int(samples["contact"].sum()),
+                "has_truth": bool(press.ground_truth is not None),
+                "press": press_description(press),
+                "stamp": stamp,
+                "files": files,
+                TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
+            }
+            | _capture_identity(folder / self.result_dir, rec.report)
+            | identity
+        )
         write_shard(shard, samples, entry)
         return entry
 
@@ -739,11 +743,12 @@ def _capture_identity(result: Path, report: dict | None = None) -> dict:
     return recorded_capture_identity(report)
 
 
-def _press_identity(folder: Path, entry: dict | None = None) -> dict:
+def press_identity_entry(folder: Path, entry: dict | None = None) -> dict:
     """``{"press_identity": record}``: the press's identity by what was captured (:mod:`nlipscalib.core.press_identity`:
     its images' content and sensor record, not meta.json's times), which a model keeps (``info.press_identities``) and
-    ``nlips infer`` compares with what it reads (:mod:`.seen`); the one ``entry`` holds already when it does; ``{}``
-    when its images cannot be read (a kept shard's press changed since: ``nlips train`` names what changed)."""
+    ``nlips infer`` compares with what it reads (:mod:`.seen`); ``{}`` when ``entry`` holds one already, and when its
+    images cannot be read (a kept shard's press changed since: ``nlips train`` names what changed): the index entry's
+    key for `nlips calibrate`'s presses and the experiments' press tasks alike (``experiments.tasks``)."""
     from ..core.press_identity import IDENTITY_KEY, is_identity, press_identity
 
     if entry is not None and is_identity(entry.get(IDENTITY_KEY)):
