@@ -215,3 +215,32 @@ def test_a_reused_model_without_press_identities_is_said_of(model, built, tmp_pa
         assert main(args) == 0
     warned = [r.getMessage() for r in caplog.records if "meta.json's bytes too" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith(f"{model}: trained before 2026-12-08"), warned
+
+
+def test_the_rule_by_content_first_then_by_meta_json():
+    """learn.seen.trained_on on records alone: a content match names the split; no match with every press recorded is
+    unseen; with a press unrecorded (a dataset of before) the older rule decides, and cannot tell a non-match."""
+    from nlipscalib.learn.seen import judged_by_meta, trained_on
+
+    def ident(c):
+        return {"rule": 1, "press": c * 64, "tricolor": c.upper() * 64}
+
+    info = {
+        "captures": {"a": "1" * 64, "b": "2" * 64},
+        "press_identities": {"a": ident("a"), "b": ident("b")},
+        "val_presses": ["b"],
+    }
+    old_inputs = {"press": "9" * 64}  # another meta.json: the older rule misses it
+    assert trained_on(info, old_inputs, ident("a")) == "train"
+    assert trained_on(info, old_inputs, ident("b")) == "validation"
+    assert trained_on(info, old_inputs, ident("c")) == "unseen" and not judged_by_meta(info, ident("c"))
+    frame = {"rule": 1, "tricolor": "B" * 64}
+    assert trained_on(info, {"frame": "f" * 64}, frame) == "validation"
+    assert trained_on(info, {"frame": "f" * 64}, {"rule": 1, "tricolor": "C" * 64}) == "unseen"
+    assert trained_on(info, old_inputs, ident("a") | {"rule": 2}) == "unseen"  # another rule: by meta.json's bytes
+    partial = info | {"press_identities": {"a": ident("a"), "b": None}}
+    assert trained_on(partial, old_inputs, ident("a")) == "train"
+    assert trained_on(partial, {"press": "2" * 64}, ident("c")) == "validation"  # the older rule's match
+    assert trained_on(partial, old_inputs, ident("c")) == "unseen" and judged_by_meta(partial, ident("c"))
+    assert trained_on(partial | {"captures": {"a": "1" * 64, "b": None}}, old_inputs, ident("c")) is None
+    assert trained_on({"captures": info["captures"]}, {"frame": "f" * 64}, frame) is None  # a frame, an older model
