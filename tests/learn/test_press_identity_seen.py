@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
+from nlipscalib.core import press_identity as identity_module
 from nlipscalib.core.imageio import read_png16, write_png16
 from nlipscalib.core.press_identity import press_identity
 from nlipscalib.learn.dataset import CalibrationDataset, SamplingConfig, build_dataset, write_index, write_shard
@@ -142,9 +143,9 @@ def test_an_older_model_is_judged_by_meta_json_too_and_says_so_once(model, input
     assert len(said) == 1 and said[0].startswith(f"{old}: records the presses it learnt from"), said
 
 
-def test_a_re_run_over_an_older_dataset_records_the_identities_of_its_kept_shards(solved, built):  # noqa: F811
+def test_a_re_run_over_an_older_dataset_records_the_identities_of_its_kept_shards(solved, built, monkeypatch):  # noqa: F811
     """Shards and index.json as a build before 2026-12-08 wrote them (no press_identity): a re-build keeps every
-    shard and records each press's identity."""
+    shard and records each press's identity; the next one takes them from index.json, hashing no press again."""
     index = _index(built)
     for entry in index["presses"]:
         del entry["press_identity"]
@@ -155,6 +156,10 @@ def test_a_re_run_over_an_older_dataset_records_the_identities_of_its_kept_shard
     assert all("press_identity" not in e for e in CalibrationDataset(built).entries)
     names = [*PRESSES, HELD]
     build_dataset([solved / n for n in names], solved / "reference", built, progress=False)
+    for entry in _index(built)["presses"]:
+        assert entry["press_identity"] == press_identity(solved / entry["name"])
+    monkeypatch.setattr(identity_module, "press_identity", lambda folder: pytest.fail(f"{folder} hashed again"))
+    build_dataset([solved / n for n in names], solved / "reference", built, progress=False)  # from index.json now
     for entry in _index(built)["presses"]:
         assert entry["press_identity"] == press_identity(solved / entry["name"])
 
