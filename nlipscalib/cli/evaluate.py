@@ -14,10 +14,12 @@ re-computed from the settings recorded in its report.json, with a warning; when 
 records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
 by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table. NLiPsNet
 and lookup-table results say whether their model learnt from the capture (report.json `trained_on`, compared by
-content: a press of the same name in another dataset is unseen): the table then has a `data` column (train,
-validation, unseen) and the mean and pooled figures of the seen presses (trained or validated on) and the unseen ones
-apart, named again in a line below it; results of a model trained before 2026-12-07 (a table fitted before
-s42-lutseen), or of an image frame, are scored together, said once.
+content: a press of the same name in another dataset is unseen; since 2026-12-08 by its images and sensor record, so
+a copy elsewhere with other times in its meta.json is seen, and an image frame of a trained press's tri-colour pixels
+too): the table then has a `data` column (train, validation, unseen) and the mean and pooled figures of the seen
+presses (trained or validated on) and the unseen ones apart, named again in a line below it; results of a model
+trained before 2026-12-07 (a table fitted before s42-lutseen), or of an image frame by a model trained before
+2026-12-08, are scored together, said once.
 """
 
 from __future__ import annotations
@@ -691,7 +693,7 @@ def _print(rows: list[tuple[str, dict]], seen: dict[str, str | None] | None = No
 def _trained_on(report: dict) -> str | None:
     """A result's ``trained_on`` (:func:`nlipscalib.learn.seen.trained_on`'s verdict, recorded by `nlips infer`), or
     None when it records none (its model, or the nlipscalib that inferred it, is of before 2026-12-07; an image
-    frame's result; NLiPs's)."""
+    frame's result by a model of before 2026-12-08; NLiPs's)."""
     from ..learn.seen import SEEN, TRAINED_ON_KEY, UNSEEN
 
     verdict = report.get(TRAINED_ON_KEY) if isinstance(report, dict) else None
@@ -721,9 +723,10 @@ def _seen_line(rows: list[tuple[str, dict]], seen: dict[str, str | None], method
         if not seen:
             return None
         return (
-            "seen and unseen presses not told apart: the results record no `trained_on` (an image frame's, or "
-            "inferred by an nlipscalib before 2026-12-07 or a model that records no captures it learnt from: a network "
-            "trained before 2026-12-07, a table fitted before s42-lutseen, a dataset that records none; "
+            "seen and unseen presses not told apart: the results record no `trained_on` (an image frame's by a model "
+            "trained before 2026-12-08, or inferred by an nlipscalib before 2026-12-07 or a model that records no "
+            "captures it learnt from: a network trained before 2026-12-07, a table fitted before s42-lutseen, a "
+            "dataset that records none; "
             f"{LEARNT.get(method, LEARNT['nlipsnet'])} and `nlips infer` again record it): scored together"
         )
     parts = []

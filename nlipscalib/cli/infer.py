@@ -708,7 +708,8 @@ def _infer_stills(args: argparse.Namespace, run_hold: contextlib.ExitStack) -> i
                 steep(why, str(source))
             inner.append(result.seconds["total"])
             if folder is not None:
-                _save(args, predictor, result, name, folder, provenance, press_folder)
+                identity = getattr(load, "identity", None)  # an image frame's, taken as it was decoded
+                _save(args, predictor, result, name, folder, provenance, press_folder, source, identity)
     unlike.flush()
     steep.flush()
     if steep.count > STILLS_WARNED_IN_FULL:
@@ -985,8 +986,16 @@ class _EightBitNotice:
 
 def _image_loader(path: Path, eight_bit: Callable[[Path], None] | None) -> Callable[[Predictor], np.ndarray]:
     def load(predictor: Predictor) -> np.ndarray:
+        from ..core.press_identity import frame_identity
+        from ..learn.seen import IDENTITIES_KEY
+
         # the model's tone curve undone as the image is converted: an 8-bit one's in one 256-entry lookup
-        return predictor.linear(read_still(path, eight_bit, predictor.tone_curve), path, in_light=True)
+        stored = read_still(path, eight_bit, predictor.tone_curve)
+        if predictor.tone_curve is None and predictor.model.info.get(IDENTITIES_KEY):
+            # the stored values as decoded are the frame's identity (report trained_on): hashed here (~2 ms at
+            # 640x480), not decoded a second time when the result is saved (~12 ms a frame)
+            load.identity = frame_identity(stored)
+        return predictor.linear(stored, path, in_light=True)
 
     return load
 
@@ -1333,8 +1342,13 @@ def _save(
     folder: Path,
     provenance: dict,
     press_folder: Path | None,
+    source: Path,
+    identity: dict | None = None,
 ) -> None:
-    """Write ``result`` into ``folder`` (with its points.ply and figures when asked), recording ``provenance``.
+    """Write ``result`` into ``folder`` (with its points.ply and figures when asked), recording ``provenance``;
+    ``source``: the image file of a frame (a press's: its folder), whose identity by content is compared with the
+    presses the model learnt from (report ``trained_on``, :func:`_content_identity`); ``identity``: that identity
+    when the frame's loader took it already.
 
     The figures are ``nlips solve``'s (report.reconstruction, ``args.figures``): the normal map, the depth map as
     the indentation from the model's undeformed dome and, for a press with ground truth (a twin's gt.npz), the
@@ -1344,7 +1358,9 @@ def _save(
     from ..learn.ply import write_ply
     from ..report import write_reconstruction_figures
 
-    reconstruction = to_reconstruction(result, predictor, name, provenance)
+    identity = identity or _content_identity(predictor.model.info, press_folder, source)
+    reconstruction = to_reconstruction(result, predictor, name, provenance, identity)
+    _say_judged_by_meta(args.model, predictor.model.info, identity, reconstruction.report, press_folder)
 
     def extra(tmp: Path) -> None:
         # written into the temporary folder, so the result is published with its points.ply and figures or not at
@@ -1433,6 +1449,43 @@ def _what_changed(old: dict, new: dict) -> list[str]:
             if k in libraries and libraries[k] != v
         ]
     return changes or ["a record that differs"]
+
+
+def _content_identity(info: dict, press_folder: Path | None, source: Path) -> dict | None:
+    """The input's identity by content (:mod:`nlipscalib.core.press_identity`) when the model records those of the
+    presses it learnt from (``info.press_identities``), for report ``trained_on``: a press folder's record, or an image
+    frame's pixels as stored values (:func:`read_still`, no tone curve undone: as a press's tri-colour PNG is
+    decoded); None when the model records none (nothing to compare with: no file hashed) or the input cannot be read
+    again (said by its load)."""
+    from ..core.errors import CaptureError
+    from ..core.press_identity import frame_identity, press_identity
+    from ..learn.seen import IDENTITIES_KEY
+
+    if not info.get(IDENTITIES_KEY):
+        return None
+    try:
+        return press_identity(press_folder) if press_folder is not None else frame_identity(read_still(source))
+    except (CaptureError, OSError, ValueError):
+        return None
+
+
+def _say_judged_by_meta(model: str, info: dict, identity: dict | None, report: dict, press_folder: Path | None) -> None:
+    """Say once (a warning) that a press counted unseen was judged by the older rule, meta.json's bytes too
+    (:func:`nlipscalib.learn.seen.judged_by_meta`: a model trained before 2026-12-08, or on a dataset built before
+    it): a copy of a press the model learnt from whose meta.json differs (another render's times) counts so too."""
+    from ..core import said_once
+    from ..learn.seen import TRAINED_ON_KEY, UNSEEN, judged_by_meta
+
+    if press_folder is None or report.get(TRAINED_ON_KEY) != UNSEEN or not judged_by_meta(info, identity):
+        return
+    if said_once.first_time(f"judged by meta.json: {model}"):
+        log.warning(
+            "%s: records the presses it learnt from by their meta.json's bytes too (trained before 2026-12-08, or on "
+            "a dataset built before it), so a copy of one of them whose meta.json differs (rendered or copied "
+            "elsewhere: other times) counts as unseen (report.json trained_on); run `nlips calibrate` on its presses "
+            "again and train into another --out to record them by their images",
+            model,
+        )
 
 
 def input_identity(press_folder: Path | None, source: Path) -> dict:

@@ -416,16 +416,28 @@ def _older_model(out: Path, info: dict) -> str | None:
     Why: a training of the same options on the same samples reuses the model whatever nlipscalib trained it (its
     weights are what training again would give); one trained before 2026-12-06 records no calibrated contacts
     (``learn.resolution.INFO_KEY``), so `nlips infer` could not judge a contact against the steepest calibration
-    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word. ``info``: the reused
+    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word. One trained before
+    2026-12-08 records its presses by their meta.json's bytes too (no ``press_identities``,
+    :mod:`nlipscalib.learn.seen`): a copy of one with another meta.json counts as unseen. ``info``: the reused
     model's (``LoadedModel.info``)."""
+    from ..core.press_identity import is_identity
     from ..learn.resolution import INFO_KEY
+    from ..learn.seen import IDENTITIES_KEY
 
-    if INFO_KEY in info:
-        return None
-    return (
-        f"{out}: trained by an nlipscalib before 2026-12-06: it records no calibrated contacts, so `nlips infer` "
-        "judges a contact's steepness by NLiPsNet's own limit only; train into another --out to record them"
-    )
+    if INFO_KEY not in info:
+        return (
+            f"{out}: trained by an nlipscalib before 2026-12-06: it records no calibrated contacts, so `nlips infer` "
+            "judges a contact's steepness by NLiPsNet's own limit only; train into another --out to record them"
+        )
+    known = info.get(IDENTITIES_KEY)
+    if not (isinstance(known, dict) and known and all(is_identity(r) for r in known.values())):
+        return (
+            f"{out}: trained before 2026-12-08 or on a dataset built before it: it records the presses it learnt from "
+            "by their meta.json's bytes too, so `nlips infer` counts a copy of one whose meta.json differs (rendered "
+            "or copied elsewhere) as unseen; run `nlips calibrate` on the presses again and train into another --out "
+            "to record them by their images"
+        )
+    return None
 
 
 def _device_note(history: list[dict], device: str) -> str:

@@ -546,20 +546,26 @@ def _write_samples(
     The samples' record (the task result's ``samples``, whence its dataset entry: :func:`dataset_entry`) carries the
     identity of the capture the labels were solved from (``capture_identity``, as ``nlips calibrate``'s: the label
     solve's ``provenance.inputs.press``), so a model trained or a table fitted on the experiment's dataset tells the
-    presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS)."""
-    from ..learn.dataset import recorded_capture_identity
+    presses it learnt from (report.json ``trained_on`` of ``nlips infer`` on OUT/presses/PRESS), and the press's
+    identity by content (``press_identity``, :mod:`nlipscalib.core.press_identity`), which tells the same press
+    rendered in another work folder as the same."""
+    from ..learn.dataset import press_identity_entry, recorded_capture_identity
 
     if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
         return {"file": None, "error": "the NLiPs label solve failed"}
     arrays = adapters.calibration_samples(press, rec, reference, task.samples)
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
-    info = {
-        "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
-        "count": int(len(arrays["rgb"])),
-        "contact": int(arrays["contact"].sum()),
-        "has_truth": bool(press.ground_truth is not None),
-    } | recorded_capture_identity(getattr(rec, "report", None))
+    info = (
+        {
+            "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
+            "count": int(len(arrays["rgb"])),
+            "contact": int(arrays["contact"].sum()),
+            "has_truth": bool(press.ground_truth is not None),
+        }
+        | recorded_capture_identity(getattr(rec, "report", None))
+        | press_identity_entry(press.folder)
+    )
     adapters.write_samples(path, arrays, dataset_entry(out, task, info))
     view = adapters.figure_view(press, reference, task.samples)
     if view:
@@ -571,25 +577,32 @@ def dataset_entry(out: Path, task: Task, info: dict) -> dict:
     """A press task's entry in the experiment's calibration dataset (learn.dataset's index.json), from the
     ``samples`` record of its result; ``stamp``, the identity of its samples, is the task's hash (its press, scene,
     solves and sampling); ``capture_identity`` where the record holds it (:func:`_write_samples`; a task run before
-    2026-12-07 evening records none)."""
+    2026-12-07 evening records none); ``press_identity`` where it holds one (a task run before 2026-12-08 holds
+    none)."""
+    from ..core.press_identity import IDENTITY_KEY, is_identity
     from ..learn.dataset import CAPTURE_IDENTITY
 
     ind = task.press["indenter"]
     identity = info.get(CAPTURE_IDENTITY)
-    return {
-        "name": task.id,
-        "folder": str(Path(out) / "presses" / task.id),
-        "samples": info["count"],
-        "contact_samples": info["contact"],
-        "has_truth": info["has_truth"],
-        "press": {
-            "indenter": ind["kind"],
-            "polar_deg": task.press["polar_deg"],
-            "azimuth_deg": task.press["azimuth_deg"],
-            "depth_mm": task.press["depth"],
-        },
-        "stamp": task.hash,
-    } | ({CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {})
+    content = info.get(IDENTITY_KEY)
+    return (
+        {
+            "name": task.id,
+            "folder": str(Path(out) / "presses" / task.id),
+            "samples": info["count"],
+            "contact_samples": info["contact"],
+            "has_truth": info["has_truth"],
+            "press": {
+                "indenter": ind["kind"],
+                "polar_deg": task.press["polar_deg"],
+                "azimuth_deg": task.press["azimuth_deg"],
+                "depth_mm": task.press["depth"],
+            },
+            "stamp": task.hash,
+        }
+        | ({CAPTURE_IDENTITY: identity} if isinstance(identity, str) and identity else {})
+        | ({IDENTITY_KEY: content} if is_identity(content) else {})
+    )
 
 
 def _solve_one(

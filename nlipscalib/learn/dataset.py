@@ -37,6 +37,7 @@ import dataclasses
 import hashlib
 import json
 import logging
+import os
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -322,7 +323,11 @@ def write_index(
     keeps; None when unknown. ``reference_files``: the undeformed capture's files as the build read them
     (core.press_checksums.files_as_read), which ``nlips train`` compares with the capture's files now.
     ``tricolor``: the tri-colour frames' check (:func:`.dataset_tricolor.index_record`: the undeformed capture's
-    verdict, the presses left out); None where none was made (an experiment's dataset)."""
+    verdict, the presses left out); None where none was made (an experiment's dataset).
+
+    Each sample file's digest is read from the index.json it replaces where the file's stat is the one recorded there
+    (:func:`sample_file_record`): a build over kept shards reads none of them for it (Q2 full's 127 MB: ~0.1 s)."""
+    known, known_sensor = _old_records(folder)
     index = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -332,10 +337,10 @@ def write_index(
         "reference": reference,
         "sampling": sampling_record(cfg),
         "sample_rules": dict(SAMPLE_RULES),
-        "presses": [_with_shard_record(folder, entry) for entry in entries],
+        "presses": [_with_shard_record(folder, entry, known.get(entry.get("name"))) for entry in entries],
     }
     if (folder / SENSOR_FILE).is_file():
-        index[SENSOR_RECORD] = sample_file_record(folder / SENSOR_FILE)
+        index[SENSOR_RECORD] = sample_file_record(folder / SENSOR_FILE, known_sensor)
     if reference_files is not None:
         index["reference_files"] = reference_files
     if tricolor is not None:
@@ -349,23 +354,45 @@ SENSOR_RECORD = "sensor_file"
 """index.json key: sensor.npz as the build wrote it (:func:`sample_file_record`)."""
 
 
-def sample_file_record(path: Path) -> dict:
-    """``{"bytes": N, "sha256": hex}`` of a sample file (a shard, sensor.npz): what index.json records of it, and
-    what :meth:`CalibrationDataset.samples_changed` compares the file with now.
+def sample_file_record(path: Path, known: object = None) -> dict:
+    """``{"bytes": N, "sha256": hex, "stat": {...}}`` of a sample file (a shard, sensor.npz): what index.json records
+    of it, and what :meth:`CalibrationDataset.samples_changed` compares the file with now (``bytes``, ``sha256``).
 
     Why a digest of the file's bytes, not of its arrays: it is read at disk speed with no inflating (Q2 full's
     127 MB of shards: ~0.1 s of CPU, against ~2.1 s to inflate and check them), so `nlips train` tells a kept
-    re-run from the records (:meth:`CalibrationDataset.samples_key`) and checks the files against them cheaply."""
+    re-run from the records (:meth:`CalibrationDataset.samples_key`) and checks the files against them cheaply.
+
+    ``known``: the record an earlier index.json holds of the file (:func:`write_index`'s build over kept shards): its
+    digest is taken as it is, the file not read, when the file's ``stat`` is the one recorded (``inode``,
+    ``mtime_ns``, ``ctime_ns``) at the size recorded; a file written, replaced or copied since has another (a copy
+    that keeps the modification time still sets the change time) and is read. ``stat`` is taken before the read, so
+    a file changed while it is read is read again next time."""
     with path.open("rb") as f:
+        st = os.fstat(f.fileno())
+        stat = {"inode": st.st_ino, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns}
+        if _is_file_record(known) and known["bytes"] == st.st_size and known.get("stat") == stat:
+            return {"bytes": known["bytes"], "sha256": known["sha256"], "stat": stat}
         digest = hashlib.file_digest(f, "sha256").hexdigest()
         size = f.tell()
-    return {"bytes": size, "sha256": digest}
+    return {"bytes": size, "sha256": digest, "stat": stat}
 
 
-def _with_shard_record(folder: Path, entry: dict) -> dict:
-    """``entry`` with its shard's :func:`sample_file_record` (``shard``), when the shard is there."""
+def _with_shard_record(folder: Path, entry: dict, known: object = None) -> dict:
+    """``entry`` with its shard's :func:`sample_file_record` (``shard``; ``known``: the earlier index.json's record of
+    it), when the shard is there."""
     shard = folder / SHARD_DIR / f"{entry.get('name')}.npz"
-    return entry | {SHARD_RECORD: sample_file_record(shard)} if shard.is_file() else entry
+    return entry | {SHARD_RECORD: sample_file_record(shard, known)} if shard.is_file() else entry
+
+
+def _old_records(folder: Path) -> tuple[dict, object]:
+    """({press name: shard record}, sensor.npz's record) of the index.json in ``folder`` now (the build's last);
+    ({}, None) when there is none or it is unreadable: every file is then read."""
+    try:
+        index = json.loads((folder / INDEX_FILE).read_text(encoding="utf-8"))
+        shards = {e["name"]: e.get(SHARD_RECORD) for e in index["presses"] if isinstance(e, dict)}
+        return shards, index.get(SENSOR_RECORD)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}, None
 
 
 def torn_index(folder: Path, problem: str) -> str:
@@ -649,7 +676,9 @@ class _Build:
             kept = _kept_entry(shard, stamp, self.old.get(folder.name))
             if kept is not None:  # resumed, or made meanwhile by another build of this dataset
                 self.kept.append(folder.name)
-                return kept | _capture_identity(folder / self.result_dir)  # a shard made before it was recorded
+                # a shard made before they were recorded: the identities now (the press's content, cached per stamp)
+                indexed = self.old.get(folder.name)
+                return kept | _capture_identity(folder / self.result_dir) | press_identity_entry(folder, kept, indexed)
             return self.make(folder, shard, stamp)
 
     def make(self, folder: Path, shard: Path, stamp: str) -> dict:
@@ -665,22 +694,27 @@ class _Build:
         from ..core.press_meta import listed_files
 
         files = files_as_read(folder, listed_files(press.meta))  # before its files are read: what they were
+        identity = press_identity_entry(folder)  # what was captured (learn.seen), as sampled
         rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
         tricolor = press_tricolor_verdict(press, reordered(rec.report)).record()
         if disagrees(tricolor) and not self.keep_tricolor:  # to be left out (sort_presses): no shard, no samples
             return {"name": folder.name, "folder": str(folder.resolve()), TRICOLOR_KEY: tricolor}
         samples = press_samples(press, rec, self.ref, self.cfg)
-        entry = {
-            "name": folder.name,
-            "folder": str(folder.resolve()),
-            "samples": int(len(samples["rgb"])),
-            "contact_samples": int(samples["contact"].sum()),
-            "has_truth": bool(press.ground_truth is not None),
-            "press": press_description(press),
-            "stamp": stamp,
-            "files": files,
-            TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
-        } | _capture_identity(folder / self.result_dir, rec.report)
+        entry = (
+            {
+                "name": folder.name,
+                "folder": str(folder.resolve()),
+                "samples": int(len(samples["rgb"])),
+                "contact_samples": int(samples["contact"].sum()),
+                "has_truth": bool(press.ground_truth is not None),
+                "press": press_description(press),
+                "stamp": stamp,
+                "files": files,
+                TRICOLOR_KEY: tricolor,  # carried by the shard: a resumed build knows it
+            }
+            | _capture_identity(folder / self.result_dir, rec.report)
+            | identity
+        )
         write_shard(shard, samples, entry)
         return entry
 
@@ -708,6 +742,29 @@ def _capture_identity(result: Path, report: dict | None = None) -> dict:
         except CaptureError:
             return {}
     return recorded_capture_identity(report)
+
+
+def press_identity_entry(folder: Path, entry: dict | None = None, indexed: dict | None = None) -> dict:
+    """``{"press_identity": record}``: the press's identity by what was captured (:mod:`nlipscalib.core.press_identity`:
+    its images' content and sensor record, not meta.json's times), which a model keeps (``info.press_identities``) and
+    ``nlips infer`` compares with what it reads (:mod:`.seen`): the index entry's key for `nlips calibrate`'s presses
+    and the experiments' press tasks alike (``experiments.tasks``).
+
+    ``{}`` when the shard's ``entry`` holds one already, and when the images cannot be read (a kept shard's press
+    changed since: ``nlips train`` names what changed). For a kept shard made before it was recorded, the previous
+    index.json's ``indexed`` entry's identity when that entry has the shard's ``stamp`` (the same result and options),
+    so only the first build of this version hashes its presses (~30 ms a 640x480 press)."""
+    from ..core.press_identity import IDENTITY_KEY, is_identity, press_identity
+
+    if entry is not None and is_identity(entry.get(IDENTITY_KEY)):
+        return {}
+    if entry is not None and isinstance(indexed, dict) and indexed.get("stamp") == entry.get("stamp"):
+        if is_identity(indexed.get(IDENTITY_KEY)):
+            return {IDENTITY_KEY: indexed[IDENTITY_KEY]}
+    try:
+        return {IDENTITY_KEY: press_identity(folder)}
+    except CaptureError:
+        return {}
 
 
 def recorded_capture_identity(report: object) -> dict:

@@ -696,7 +696,7 @@ def drift_warning(frame: Frame, where: str | Path) -> str | None:
 
 
 def to_reconstruction(
-    frame: Frame, predictor: Predictor, source: str, provenance: dict | None = None
+    frame: Frame, predictor: Predictor, source: str, provenance: dict | None = None, identity: dict | None = None
 ) -> Reconstruction:
     """The frame in the core reconstruction format (what ``nlips eval`` scores).
 
@@ -714,6 +714,9 @@ def to_reconstruction(
         A press's identity is also compared with the captures the model learnt from (:func:`.seen.trained_on`):
         the report's ``trained_on`` ("train", "validation" or "unseen"; absent when it cannot tell), by which
         ``nlips eval`` scores seen and unseen presses apart.
+    identity : dict, optional
+        The input's identity by content (``core.press_identity.press_identity`` of a press folder, ``frame_identity``
+        of an image frame), compared first (:func:`.seen.trained_on`); None: the ``inputs`` alone.
     """
     from ..core.reconstruction import Reconstruction
     from .seen import TRAINED_ON_KEY, trained_on
@@ -749,7 +752,7 @@ def to_reconstruction(
             "changed_pixels": int(frame.changed.sum()),
             "seconds": frame.seconds,
         }
-        | ({TRAINED_ON_KEY: seen} if (seen := trained_on(predictor.model.info, inputs)) else {})
+        | ({TRAINED_ON_KEY: seen} if (seen := trained_on(predictor.model.info, inputs, identity)) else {})
         | ({"provenance": dict(provenance)} if provenance else {}),
     )
 

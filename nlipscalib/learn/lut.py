@@ -273,7 +273,8 @@ def fit_table_file(
     (of the samples fitted on, ``learn.checkpoint.data_key_of``), ``capture``, ``train_presses``, ``captures``
     (``{press name: capture identity}`` of ``train_presses``, index.json's ``capture_identity``, None where it records
     none: as a network's, what ``nlips infer`` compares a press with for report.json ``trained_on``,
-    :mod:`.seen`), ``excluded_presses``, ``train_samples``, ``contact_samples``, ``filled_bins`` and ``contacts``
+    :mod:`.seen`), ``press_identities`` (their identities by content, index.json's ``press_identity``, compared
+    first), ``excluded_presses``, ``train_samples``, ``contact_samples``, ``filled_bins`` and ``contacts``
     (``learn.resolution.calibrated_contacts``: ``nlips infer`` warns of steeper contacts, as for a network). No
     time in it: the same fit writes the same bytes, so ``nlips infer`` keeps the results it made with it.
 
@@ -282,11 +283,12 @@ def fit_table_file(
     (LookupTable, info)
     """
     from ..core.errors import ConfigError
+    from ..core.press_identity import IDENTITY_KEY
     from .checkpoint import data_key_of
     from .dataset import CAPTURE_IDENTITY, INDEX_FILE
     from .model import save_table
     from .resolution import INFO_KEY, calibrated_contacts
-    from .seen import CAPTURES_KEY
+    from .seen import CAPTURES_KEY, IDENTITIES_KEY
 
     if type(bins) is not int or not 2 <= bins <= MAX_BINS:
         raise ConfigError(f"bins must be an integer in [2, {MAX_BINS}], got {bins!r}")
@@ -313,6 +315,7 @@ def fit_table_file(
         "train_presses": names,
         # the table learnt from these captures: its results tell them from the others (report.json trained_on)
         CAPTURES_KEY: {name: data.entry(name).get(CAPTURE_IDENTITY) for name in names},
+        IDENTITIES_KEY: {name: data.entry(name).get(IDENTITY_KEY) for name in names},  # by content (learn.seen)
         "excluded_presses": sorted(exclude),
         "train_samples": int(keep.sum()),
         "contact_samples": int((keep & s["contact"]).sum()),

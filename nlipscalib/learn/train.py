@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.config import OMIT_AT, did_you_mean
 from ..core.errors import PATH, ConfigError, check_flag, check_kind
+from ..core.press_identity import IDENTITY_KEY
 from .checkpoint import (
     check_sampling_record,
     checkpoint_path,
@@ -51,7 +52,7 @@ from .model import (
 from .prefilter import check_sigma
 from .publish import clean_interrupted_writes
 from .resolution import INFO_KEY, calibrated_contacts
-from .seen import CAPTURES_KEY
+from .seen import CAPTURES_KEY, IDENTITIES_KEY
 from .torch_device import check_device, torch_threads
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
@@ -599,7 +600,9 @@ def _save_trained(
     ``nlips infer`` keys results on) when the data moved, and told whoever received the model the lab's folders.
     ``keys``: (``data_key``, ``samples_key``: :func:`_verified_samples_key`). The capture identities of its
     training and validation presses (``captures``, index.json's ``capture_identity``: null where it records none)
-    let ``nlips infer`` tell a press it learnt from from another of the same name (report.json ``trained_on``)."""
+    let ``nlips infer`` tell a press it learnt from from another of the same name (report.json ``trained_on``); their
+    identities by content (``press_identities``, index.json's ``press_identity``: null where it records none) tell a
+    copy of one with another meta.json, and an image frame of its tri-colour pixels, as the press (:mod:`.seen`)."""
     data_key, samples_key = keys
     names = data.train_names + data.val_names
     info = {
@@ -609,6 +612,7 @@ def _save_trained(
         "samples_digest": data_key,
         "samples_key": samples_key,
         CAPTURES_KEY: {name: dataset.entry(name).get(CAPTURE_IDENTITY) for name in names},
+        IDENTITIES_KEY: {name: dataset.entry(name).get(IDENTITY_KEY) for name in names},  # by content (learn.seen)
         "capture": dataset.capture,  # what `nlips infer` names when a press was taken otherwise
         "train_presses": data.train_names,
         "val_presses": data.val_names,

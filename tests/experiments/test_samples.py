@@ -130,7 +130,8 @@ def test_a_press_task_writes_samples_carrying_its_entry_and_stamp(tmp_path):
         write_samples=adapters.write_samples,
         figure_view=lambda *a: {},
     )
-    info = tasks._write_samples(fake, tmp_path, task, SimpleNamespace(ground_truth=None), tmp_path, rec=object())
+    press = SimpleNamespace(ground_truth=None, folder=tmp_path / "gone")  # no images: no press_identity
+    info = tasks._write_samples(fake, tmp_path, task, press, tmp_path, rec=object())
     entry, count = adapters.samples_entry(samples_path(tmp_path, task.id))
     assert entry == dataset_entry(tmp_path, task, info) and entry["stamp"] == task.hash and count == 5
 
@@ -278,6 +279,7 @@ def test_an_experiments_dataset_records_the_capture_each_press_tasks_labels_were
     own solving path (``adapters.solve``: the pipeline), on an exact-data 64x48 press; a task result of before,
     without it, gives an entry without it."""
     from nlipscalib.core import capture, sensor_record
+    from nlipscalib.core.press_identity import press_identity
     from nlipscalib.experiments import adapters
     from nlipscalib.learn import dataset
     from nlipscalib.pipeline import capture_identity
@@ -301,6 +303,7 @@ def test_an_experiments_dataset_records_the_capture_each_press_tasks_labels_were
     assert info["capture_identity"] == identity
     entry, _ = adapters.samples_entry(samples_path(tmp_path, task.id))
     assert entry["capture_identity"] == identity and entry == dataset_entry(tmp_path, task, info)
+    assert entry["press_identity"] == press_identity(folder) == info["press_identity"]  # by content (s43-pressid)
 
     sensor = _sensor()
     cam = sensor["camera"]
