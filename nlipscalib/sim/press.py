@@ -25,6 +25,7 @@ from ..core.capture import write_press
 from ..core.errors import PATH, ConfigError, check_flag, check_kind, check_whole
 from ..core.leds import tricolor_colors
 from ..core.press_folders import check_render_out, is_press_folder
+from .bayer import apply_crosstalk, bayer_camera
 from .camera_effects import apply_lens
 from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
@@ -348,6 +349,10 @@ def camera_capture(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """What the camera stores of linear LED images: dark frame, LED images, tri-colour image.
 
+    The lens (defocus, vignetting), the filters' colour crosstalk (of the tri-colour frame's LED colours, and of
+    each white LED image's), the sensor's noise and response, and, for a Bayer camera, its mosaic and demosaicing
+    (:mod:`.bayer`), in that order.
+
     Parameters
     ----------
     scene : SceneConfig -- camera effects, noise model, exposure
@@ -365,8 +370,10 @@ def camera_capture(
     seen = apply_lens(images, camera, effects)
     rng = np.random.default_rng(seed)
     dark = dark_frame(camera.shape, cfg, rng, effects)
-    leds = apply_noise(seen, exposure, cfg, rng, effects)
-    tri = apply_noise(tricolor_linear(seen), tri_exposure, cfg, rng, effects)
+    leds = apply_noise(apply_crosstalk(seen, effects.crosstalk), exposure, cfg, rng, effects)
+    tri = apply_noise(apply_crosstalk(tricolor_linear(seen), effects.crosstalk), tri_exposure, cfg, rng, effects)
+    if effects.bayer != "none":
+        dark, leds, tri = (bayer_camera(frames, effects.bayer, effects.demosaic) for frames in (dark, leds, tri))
     return dark, leds, tri, exposure, tri_exposure
 
 
