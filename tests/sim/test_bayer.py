@@ -176,3 +176,25 @@ def test_the_tricolour_check_measures_a_bayer_cameras_noise_so_a_clean_press_fit
     assert captured_tricolor_note(tmp_path / "clean", frames, camera, leds, response, None) is None
     line = captured_tricolor_note(tmp_path / "swapped", *webcam([0, 1, 2, 4, 3, *range(5, 12)]), None)
     assert line is not None and "with led_04.png (red group) and led_05.png (green) exchanged it fits" in line, line
+
+
+def test_the_twin_exposes_for_the_light_the_channels_record_with_crosstalk():
+    """A camera whose channels record half the light is exposed twice as long (auto exposure on its own frames); a
+    crosstalk that brightens only some channels is exposed for the brightest; none leaves the exposure as it was."""
+    from nlipscalib.sim.noise import auto_exposure
+
+    y, x = np.mgrid[-3:3:20j, -3:3:20j]
+    points = np.stack([x.ravel(), y.ravel(), np.full(x.size, 12.0)], axis=1)
+    normals = np.tile([0.0, 0.0, -1.0], (x.size, 1))
+    leds = SceneConfig().led_models()
+    albedo = (0.8, 0.8, 0.8)
+    for tricolor in (False, True):
+        plain = auto_exposure(points, normals, leds, albedo, tricolor=tricolor)
+        assert auto_exposure(points, normals, leds, albedo, tricolor=tricolor, crosstalk=IDENTITY_CROSSTALK) == (
+            pytest.approx(plain, rel=1e-6)
+        )
+        half = 0.5 * np.eye(3)
+        assert auto_exposure(points, normals, leds, albedo, tricolor=tricolor, crosstalk=half) == pytest.approx(
+            2 * plain, rel=1e-5
+        )
+        assert auto_exposure(points, normals, leds, albedo, tricolor=tricolor, crosstalk=TYPICAL_CROSSTALK) < plain
