@@ -5,6 +5,10 @@ false alarms, and what is told of two LED images of different groups exchanged (
 weakest cross-group pair: told and named; led_01 / led_09; all 32 pairs), of another press's frame and of a BGR frame.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_bayer_tricolor.py PRESS... [--pattern RGGB] [--extra-noise 1500]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_bayer_tricolor.py PRESS --cost
+
+``--cost``: the CPU time of the tri-colour verdict and of the solver's ``image_noise`` on each press as stored
+(median of 7, its frames decoded first), for the before / after of s43-bayer (run it against each checkout).
 
 The Bayer camera is made in memory from each press's stored frames (:func:`nlipscalib.sim.bayer.bayer_camera`: each
 pixel's own channel of frames noised per pixel and channel is the noisy raw frame, so this is the twin's Bayer render
@@ -19,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -137,12 +142,36 @@ def measure(folders: list[Path], pattern: str, sigma: float = 0.0) -> dict:
     return rows
 
 
+def cost(folder: Path, runs: int = 7) -> tuple[float, float]:
+    """Median CPU seconds of the tri-colour verdict and of ``image_noise`` of the press's linear LED images."""
+    from nlipscalib.solver.image_stats import image_noise
+
+    verdict, noise = [], []
+    for _ in range(runs):
+        press = load_press(folder)
+        _ = [press.led_images, press.tricolor, press.dark]  # decoded, as a solve holds them
+        start = time.process_time()
+        tc.press_tricolor_verdict(press)
+        verdict.append(time.process_time() - start)
+        linear, valid = press.linear_led_images, np.isfinite(press.reference.depth)
+        start = time.process_time()
+        image_noise(linear, valid)
+        noise.append(time.process_time() - start)
+    return float(np.median(verdict)), float(np.median(noise))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("presses", type=Path, nargs="+")
     parser.add_argument("--pattern", default="RGGB")
     parser.add_argument("--extra-noise", type=float, default=0.0, help="16-bit codes of Gaussian noise, raw")
+    parser.add_argument("--cost", action="store_true", help="time the verdict and image_noise instead")
     args = parser.parse_args()
+    if args.cost:
+        for folder in args.presses:
+            verdict, noise = cost(folder)
+            print(f"{folder}: verdict {1e3 * verdict:.1f} ms CPU, image_noise {1e3 * noise:.1f} ms CPU")
+        return
     rows = measure(args.presses, args.pattern, args.extra_noise)
     print(
         "| frame | camera | presses | clean misfit | noise measured | allowed | clean warned | led_04/05 | told, named "
