@@ -2,8 +2,8 @@
 groups exchanged (led_04 / led_05, the shipped ring's weakest cross-group pair, and led_01 / led_09), another press's
 tri-colour frame (the same noise, another azimuth), the frame as BGR, and all 32 cross-group pairs, per noise level of
 the presses' scene (meta.json ``provenance.scene.noise``), each with the misfit its own noise leaves (measured
-between its blocks' halves, s41-tricheck) and what is told above the fixed 3 % (until s41) and above the misfit
-allowed now (``tricolor_check.allowed_misfit``), and the check's cost per press.
+between pairs of blocks since s43-bayer, each block's halves before) and what is told above the fixed 3 % (until s41)
+and above the misfit allowed now (``tricolor_check.allowed_misfit``), and the check's cost per press.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_tricolor_noise.py PRESSES_ROOT [--side 8] [--cost PRESS]
         [--extra-noise 400,800]
@@ -44,13 +44,13 @@ def _swapped(count: int, i: int, j: int) -> list[int]:
 
 def _faulty(samples: tc.BlockSamples, order: list[int]) -> tc.BlockSamples:
     """``samples`` with the LED images in ``order`` (two exchanged)."""
-    halves = None if samples.images_halves is None else samples.images_halves[order]
-    return samples._replace(images=samples.images[order], images_halves=halves)
+    pairs = None if samples.images_pairs is None else samples.images_pairs[order]
+    return samples._replace(images=samples.images[order], images_pairs=pairs)
 
 
 def _bgr(samples: tc.BlockSamples) -> tc.BlockSamples:
-    halves = None if samples.tricolor_halves is None else samples.tricolor_halves[:, ::-1]
-    return samples._replace(tricolor=samples.tricolor[:, ::-1], tricolor_halves=halves)
+    pairs = None if samples.tricolor_pairs is None else samples.tricolor_pairs[:, ::-1]
+    return samples._replace(tricolor=samples.tricolor[:, ::-1], tricolor_pairs=pairs)
 
 
 def _noisier(press, sigma: float, seed: int):  # noqa: ANN001, ANN202

@@ -36,6 +36,7 @@ from .core.press_meta import EMULATOR_DEVICE
 from .core.sensor_response import SensorResponse, linear_to_srgb
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
+from .sim.bayer import apply_crosstalk, bayer_camera
 from .sim.camera_effects import apply_lens
 from .sim.indent import PressConfig, apply_press
 from .sim.noise import apply_noise
@@ -263,10 +264,13 @@ class EmulatedCamera(FrameSource):
         images = self.renders.images(surface)
         lit = np.flatnonzero(colors.any(axis=1))  # most frames light one LED or none: skip the dark ones
         linear = np.einsum("lhwc,lc->hwc", images[lit], colors[lit], dtype=np.float32)
-        scene = self.renders.scene
+        scene, effects = self.renders.scene, self._effects()
+        linear = apply_crosstalk(linear, effects.crosstalk)  # of the LEDs' colours mixed: the filters see the sum
         stored = apply_noise(
-            linear, self.renders.exposure * self.exposure_scale, scene.noise, self._frame_rng(), self._effects()
+            linear, self.renders.exposure * self.exposure_scale, scene.noise, self._frame_rng(), effects
         )
+        if effects.bayer != "none":  # as the twin's captures (sim.press.camera_capture)
+            stored = bayer_camera(stored, effects.bayer, effects.demosaic)
         noise = scene.noise
         if self.encoding is None:
             return stored

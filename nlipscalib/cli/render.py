@@ -82,6 +82,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--width", type=int, default=None, help="image width, pixels (default: the scene's; nlipstac 640)")
     p.add_argument("--height", type=int, default=None, help="image height, pixels (default: the scene's; nlipstac 480)")
+    p.add_argument(
+        "--bayer",
+        default=None,
+        choices=("none", "RGGB", "BGGR", "GRBG", "GBRG"),
+        help="a Bayer camera's colour filter pattern from the top-left pixel: every frame mosaiced and demosaiced "
+        "by OpenCV as a webcam delivers it (default: the scene's [camera_effects] bayer; nlipstac none)",
+    )
+    p.add_argument(
+        "--demosaic",
+        default=None,
+        choices=("edge_aware", "bilinear"),
+        help="the Bayer camera's demosaicing (default: the scene's; edge_aware, like a webcam's processor)",
+    )
+    p.add_argument(
+        "--crosstalk",
+        default=None,
+        choices=("typical", "identity"),
+        help="the camera filters' colour crosstalk: a typical webcam sensor's (5-15 %% of the neighbouring colours) "
+        "or none (default: the scene's [camera_effects] crosstalk; nlipstac none)",
+    )
     p.add_argument("--out", required=True, help="press folder to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing press folder")
     p.set_defaults(func=run)
@@ -133,9 +153,20 @@ def _scene(args: argparse.Namespace) -> SceneConfig:
         changed = scene.replace(
             render={k: v for k, v in render.items() if v is not None},
             camera={k: v for k, v in camera.items() if v is not None},
+            camera_effects=_camera_effects(args),
         )
     check_size_pair(args.width, args.height, (scene.camera.width, scene.camera.height))  # after the ranges
     return changed
+
+
+def _camera_effects(args: argparse.Namespace) -> dict:
+    """The scene's ``[camera_effects]`` fields that --bayer, --demosaic and --crosstalk change."""
+    from ..sim.bayer import IDENTITY_CROSSTALK, TYPICAL_CROSSTALK
+
+    changes = {k: getattr(args, k) for k in ("bayer", "demosaic") if getattr(args, k) is not None}
+    if args.crosstalk is not None:
+        changes["crosstalk"] = TYPICAL_CROSSTALK if args.crosstalk == "typical" else IDENTITY_CROSSTALK
+    return changes
 
 
 @contextlib.contextmanager

@@ -1017,19 +1017,23 @@ it: a real camera's colour response is not linear to 1 % (unmeasured)."""
 TRICOLOR_NOISE_MARGIN = 1.5
 """The tri-colour frame's misfit allowed, as a multiple of the misfit the capture's own noise leaves when that is
 more than :data:`TRICOLOR_MISFIT` / this (:func:`nlipscalib.core.tricolor_check.noise_misfits`: the fit's residual
-differenced between the two halves of each block, checkerboards of 2x2 px cells, whose light is the same to first
-order and whose noise is independent). Why: a fixed 3 % warns every clean press of a camera whose blocks keep that
-much noise (a noisier camera, or a smaller frame's smaller blocks: the twin's 625/8 presses read in 2x2 px blocks,
-as a 160x120 frame's, misfit ~3 %; on single pixels, as until s40, its presses at 4x and 16x its noise variance
-misfit 3.0-3.1 % and 6.0-6.3 %, the 18 that s40's ``nlips experiment studies`` warned). The measured noise misfit
-against the clean misfit of the twin's 640x480 presses: 0.92-1.07x at every noise level (s41-tricheck), so 1.5x
-leaves a clean press a third over its own noise; under 2 % of noise (3 % / 1.5) the floor alone decides, as before.
-Two images exchanged across groups add their misfit to the noise's (4.0-4.3 % on noiseless images for the shipped
-ring's weakest pair, led_04 / led_05): the twin's 625/8 presses in 2x2 px blocks (noise 3.0-3.2 %, allowed 4.6-4.7 %,
-every clean one warned at a fixed 3 %) misfit 5.1-5.3 % with it, all named; with noise added until the clean misfit
-is 2.9-3.2 % (640x480, Gaussian, where bright blocks clip and are left out) it misfit 3.7-4.0 %, under the 4.2-4.6 %
+differenced between each block and the mean of its two partner blocks 2 blocks to either side, whose noise is
+independent and in which a disagreement linear over the three blocks cancels; until s43 between the two halves of
+each block, checkerboards of 2x2 px cells, which a Bayer camera's demosaicing correlated). Why: a fixed 3 % warns
+every clean press of a camera whose blocks keep that much noise (a noisier camera, or a smaller frame's smaller
+blocks: the twin's 625/8 presses read in 2x2 px blocks, as a 160x120 frame's, misfit ~3 %; on single pixels, as until
+s40, its presses at 4x and 16x its noise variance misfit 3.0-3.1 % and 6.0-6.3 %, the 18 that s40's ``nlips
+experiment studies`` warned). The measured noise misfit against the clean misfit of the twin's 640x480 presses:
+0.92-1.07x at every noise level between each block's halves (s41-tricheck), 0.97-1.03x between blocks and their
+partners, and 0.9-1.0x of a Bayer camera's frames, where the halves measured 0.3-0.4x (s43-bayer), so 1.5x leaves a
+clean press a third over its own noise; under 2 % of noise (3 % / 1.5) the floor alone decides, as before. Two
+images exchanged across groups add their misfit to the noise's (4.0-4.3 % on noiseless images for the shipped ring's
+weakest pair, led_04 / led_05): the twin's 625/8 presses in 2x2 px blocks (noise 3.0-3.2 %, allowed 4.6-4.7 %, every
+clean one warned at a fixed 3 %) misfit 5.1-5.3 % with it, all named; with noise added until the clean misfit is
+2.9-3.2 % (640x480, Gaussian, where bright blocks clip and are left out) it misfit 3.7-4.0 %, under the 4.2-4.6 %
 allowed: not told (the fixed 3 % warned 8 of those 9 clean presses). 2x, tried first, lost that pair at 2 % of noise,
-where the fixed 3 % still told it without a false alarm (benchmarks/RESULTS.md, s41-tricheck)."""
+where the fixed 3 % still told it without a false alarm (benchmarks/RESULTS.md, s41-tricheck: measured with the
+halves)."""
 TRICOLOR_GROUPS_APART = 0.02
 """The tri-colour frame is judged only where the LED groups' summed images tell the groups apart: in every channel
 the smallest over the largest singular value of the three groups' sums at the gel samples (each scaled to unit

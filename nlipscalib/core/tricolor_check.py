@@ -7,8 +7,8 @@ exposure over the LED images', the camera's response to that LED colour): the tw
 (``sim.press.tricolor_linear``), and its clean captures fit it within the images' noise: compared as the means of
 small blocks (:func:`tricolor_samples`), which hold a fraction of a pixel's noise (0.2 % at the twin's default noise,
 under 1 % at 16x its variance; 1.5 % and 6 % on single pixels, s40-trinoise), and the misfit allowed grows with the
-noise the capture itself shows (:func:`noise_misfits`, measured between each block's two halves), so a noisier camera
-(or a smaller frame's smaller blocks) is not warned. Two
+noise the capture itself shows (:func:`noise_misfits`, measured between blocks 2 apart), so a noisier camera
+(or a smaller frame's smaller blocks, or a Bayer camera's) is not warned. Two
 LED images of different groups captured in each other's place break that sum, and exchanging the two back in it
 mends it: that names them from the images alone, whatever the LED model (benchmarks/RESULTS.md, s37-swapcheck). In
 core beside the capture: the solve wires it (:mod:`nlipscalib.solver.led_checks`), ``nlips capture`` runs it on each
@@ -161,44 +161,74 @@ def block_pixels(pixels: np.ndarray, shape: tuple[int, int], side: int) -> np.nd
     """(B, side * side) int: the flat indices (row-major) of each square block of ``side`` px that holds one of the
     flat pixel indices ``pixels`` ((N,) int), each block once, in raster order; blocks that cross the frame's
     bottom or right edge are left out."""
+    return cell_pixels(block_cells(pixels, shape, side), shape, side)
+
+
+def block_cells(pixels: np.ndarray, shape: tuple[int, int], side: int) -> np.ndarray:
+    """(B,) int: :func:`block_pixels`' blocks as their indices in the frame's grid of whole blocks (row-major)."""
     height, width = shape
     rows, cols = np.divmod(np.asarray(pixels), width)
     rows, cols = rows // side, cols // side
     keep = (rows < height // side) & (cols < width // side)
-    cells = np.unique(rows[keep] * (width // side) + cols[keep])
-    top, left = np.divmod(cells, width // side)
-    dy, dx = np.divmod(np.arange(side * side), side)
-    return (top[:, None] * side + dy) * width + left[:, None] * side + dx
+    return np.unique(rows[keep] * (width // side) + cols[keep])
 
 
-def block_halves(side: int) -> np.ndarray | None:
-    """(side * side,) bool: the first of the two halves of a block of ``side`` px (its pixels row-major) whose
-    difference measures the block's noise (:func:`noise_misfits`): a checkerboard of 2x2 px cells (of single pixels
-    where the side is odd or 2), so that both halves' centre is the block's and a light that varies linearly over it
-    (or as x^2, y^2) is the same in both; None for 1 px blocks. Why cells: a Bayer camera's demosaicing correlates the
-    noise of neighbouring pixels, which the two halves would then share."""
-    if side < 2:
-        return None
-    cell = 2 if side % 2 == 0 and side >= 4 else 1
+def cell_pixels(cells: np.ndarray, shape: tuple[int, int], side: int) -> np.ndarray:
+    """(B, side * side) int: the flat pixel indices (row-major) of the blocks ``cells`` ((B,) int,
+    :func:`block_cells`)."""
+    top, left = np.divmod(np.asarray(cells), shape[1] // side)
     dy, dx = np.divmod(np.arange(side * side), side)
-    return (dy // cell + dx // cell) % 2 == 0
+    return (top[:, None] * side + dy) * shape[1] + left[:, None] * side + dx
+
+
+PARTNER_STEP = 2
+"""Blocks between a block and each of the two partners whose light it is compared with to measure the noise
+(:func:`partner_cells`): one block's gap, so that a Bayer camera's demosaicing, which mixes a pixel's neighbours up to
+2 px away into it (the frame's colours interpolated from a quarter or half of its pixels), shares no raw pixel between
+them (at 2 px blocks and larger)."""
+
+
+def partner_cells(cells: np.ndarray, gel: np.ndarray, shape: tuple[int, int], side: int) -> np.ndarray:
+    """(B, 2) int: for each block of ``cells`` ((B,) int, :func:`block_cells`), the two blocks :data:`PARTNER_STEP`
+    blocks to its left and right, else above and below, where both are of the gel's blocks ``gel`` (sorted (G,) int);
+    -1 where neither pair is.
+
+    Why other blocks, not the block's own two halves (until s43): a block's mean less its two partners' mean holds
+    1.5x the noise variance of one block's mean whatever the noise's correlation between neighbouring pixels, and a
+    disagreement smooth over the dome, linear over the three blocks, cancels in it; the halves of one block shared
+    their pixels' raw values through a Bayer camera's demosaicing and measured 0.4x the noise of its blocks' means (2x2
+    px cells; 0.3-0.4x in 2 px blocks): every clean press of a noisy Bayer camera was warned (docs/experiments/
+    RESULTS.md, s43-bayer)."""
+    n_rows, n_cols = shape[0] // side, shape[1] // side
+    rows, cols = np.divmod(np.asarray(cells), n_cols)
+    out = np.full((len(rows), 2), -1)
+    for dy, dx in ((0, PARTNER_STEP), (PARTNER_STEP, 0)):
+        pair = []
+        for sign in (-1, 1):
+            r, c = rows + sign * dy, cols + sign * dx
+            inside = (r >= 0) & (r < n_rows) & (c >= 0) & (c < n_cols)
+            pair.append(np.where(inside, r * n_cols + c, -1))
+        found = (out[:, 0] < 0) & np.isin(pair[0], gel) & np.isin(pair[1], gel)
+        out[found] = np.stack(pair, axis=1)[found]
+    return out
 
 
 class BlockSamples(NamedTuple):
     """What :func:`block_samples` read: the frames' mean linear light over blocks of the gel, and the difference of
-    each block's two halves (:func:`block_halves`)."""
+    pairs of blocks' means (:func:`partner_cells`), which holds their noise."""
 
     tricolor: np.ndarray
     """(n, 3) float64: the tri-colour frame's mean over each block."""
     images: np.ndarray
     """(L, n, 3) float64: each LED image's."""
-    tricolor_halves: np.ndarray | None
-    """(n, 3) float64: the tri-colour frame's first half's mean less its second's (None for 1 px blocks)."""
-    images_halves: np.ndarray | None
-    """(L, n, 3) float64: each LED image's."""
+    tricolor_pairs: np.ndarray | None
+    """(m, 3) float64: the tri-colour frame's mean over a block less the mean of its two partner blocks' means
+    (:func:`partner_cells`; None for 1 px blocks)."""
+    images_pairs: np.ndarray | None
+    """(L, m, 3) float64: each LED image's."""
     weight: float
-    """The variance of a block's mean over that of its halves' difference, for independent pixels: ``a * b / S^2``
-    for halves of ``a`` and ``b`` of the block's ``S`` px (1/4 for equal ones)."""
+    """The variance of a block's mean over that of its difference to its partners': 2/3 (blocks of independent
+    noise)."""
 
 
 def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -211,66 +241,65 @@ def tricolor_samples(press: Press, pixels: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 def block_samples(press: Press, pixels: np.ndarray) -> BlockSamples | None:
-    """:func:`tricolor_samples` with the difference of each block's two halves (:class:`BlockSamples`)."""
-    side = tricolor_block(press.camera.shape)
-    blocks = block_pixels(pixels, press.camera.shape, side)  # (B, S)
-    blocks = blocks[:: max(1, blocks.size // GEL_BLOCK_PIXELS)]
-    half = block_halves(side)
-    first = blocks.shape[1] if half is None else int(half.sum())
-    if half is not None:  # each block's first half's pixels first: both halves' means of views, nothing copied
-        blocks = blocks[:, np.argsort(~half, kind="stable")]
-    tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B, S, 3)
-    stored = _gather(press.led_images, blocks)  # (L, B, S, 3)
+    """:func:`tricolor_samples` with the difference of each block's mean and its two partner blocks' mean
+    (:func:`partner_cells`; :class:`BlockSamples`; those with a pixel saturated in any of the three left out)."""
+    shape = press.camera.shape
+    side = tricolor_block(shape)
+    gel = block_cells(pixels, shape, side)
+    cells = gel[:: max(1, gel.size * side * side // GEL_BLOCK_PIXELS)]
+    partners = partner_cells(cells, gel, shape, side) if side > 1 else np.full((len(cells), 2), -1)
+    paired = partners[:, 0] >= 0
+    blocks = cell_pixels(np.concatenate([cells, partners[paired].T.ravel()]), shape, side)  # (B + 2P, S)
+    tri_stored, dark = _gather(press.tricolor, blocks), _gather(press.dark, blocks)  # (B + P, S, 3)
+    stored = _gather(press.led_images, blocks)  # (L, B + P, S, 3)
     clipped = press.saturated(tri_stored).any(axis=(1, 2)) | press.saturated(stored).any(axis=(0, 2, 3))
-    if (~clipped).sum() < 10:
+    count = len(cells)
+    if (~clipped[:count]).sum() < 10:
         return None
     black, white = press.response.black_level, press.response.white_level
 
-    def halves(frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (..., B, S, 3) -> 2 x (..., B, 3): sums
-        return frames[..., :first, :].sum(-2, dtype=np.float64), frames[..., first:, :].sum(-2, dtype=np.float64)
-
-    def light(sums: tuple[np.ndarray, np.ndarray], dark: tuple[np.ndarray, np.ndarray], pick: int | None) -> np.ndarray:
+    def light(frames: np.ndarray) -> np.ndarray:  # (..., B + 2P, S, 3) -> (..., B + 2P, 3)
         # linearising is linear: the light's means are the stored values' means linearised
-        count = (first, blocks.shape[1] - first)
-        if pick is None:
-            frames, darks = sum(sums) / blocks.shape[1], sum(dark) / blocks.shape[1]
-        else:
-            frames, darks = sums[pick] / count[pick], dark[pick] / count[pick]
-        return linearise(frames, darks, black, white).astype(np.float64)[..., ~clipped, :]
+        means = frames.sum(-2, dtype=np.float64) / blocks.shape[1]
+        return linearise(means, dark.sum(-2, dtype=np.float64) / blocks.shape[1], black, white).astype(np.float64)
 
-    dark_sums, tri_sums, image_sums = halves(dark), halves(tri_stored), halves(stored)
-    tri, images = light(tri_sums, dark_sums, None), light(image_sums, dark_sums, None)
-    if half is None:
-        return BlockSamples(tri, images, None, None, 0.0)
-    share = first / blocks.shape[1]
-    return BlockSamples(
-        tri,
-        images,
-        light(tri_sums, dark_sums, 0) - light(tri_sums, dark_sums, 1),
-        light(image_sums, dark_sums, 0) - light(image_sums, dark_sums, 1),
-        share * (1 - share),
-    )
+    tri, images = light(tri_stored), light(stored)
+    kept = ~clipped[:count]
+    if side == 1 or not paired.any():
+        return BlockSamples(tri[:count][kept], images[:, :count][:, kept], None, None, 0.0)
+    middle = np.flatnonzero(paired)  # each block with partners; its k-th partners at count + k, count + P + k
+    before, after = count + np.arange(len(middle)), count + len(middle) + np.arange(len(middle))
+    unclipped = ~clipped[middle] & ~clipped[before] & ~clipped[after]
+    middle, before, after = middle[unclipped], before[unclipped], after[unclipped]
+
+    def differenced(light: np.ndarray) -> np.ndarray:
+        return light[..., middle, :] - (light[..., before, :] + light[..., after, :]) / 2
+
+    return BlockSamples(tri[:count][kept], images[:, :count][:, kept], differenced(tri), differenced(images), 2 / 3)
 
 
 def noise_misfits(samples: BlockSamples, groups: np.ndarray) -> np.ndarray:
     """(3,) float64: per channel, the misfit (as :func:`channel_fit`'s, RMS over the channel's RMS) that the
     capture's own noise leaves in the blocks' means, measured: the fit's residual (the design's groups, its gains)
-    differenced between each block's two halves (:func:`block_halves`), whose light is alike and whose noise is
-    not, times :attr:`BlockSamples.weight`'s root. A disagreement of the frame with the images, smooth over a block,
-    is alike in both halves and leaves it. nan where not measured (1 px blocks) or for a channel without light.
+    differenced between each block and its two partners 2 blocks either side (:func:`partner_cells`), whose noise is
+    independent, times :attr:`BlockSamples.weight`'s root. A disagreement of the frame with the images, smooth over
+    the dome (linear over the three blocks), cancels in it. nan where not measured (1 px blocks) or for a channel
+    without light.
 
     Why measured, not modelled: shot noise varies with the light, a renderer's noise too, and a camera's with its
-    gain; the twin's clean 640x480 presses misfit 0.92-1.07x this at every noise level (s41-tricheck)."""
-    if samples.tricolor_halves is None:
+    gain and its demosaicing; the twin's clean 640x480 presses misfit 0.92-1.07x the noise measured between each
+    block's halves (s41-tricheck), which a Bayer camera's demosaicing correlated (2.3x; 2.3-3.2x in 2 px blocks);
+    between blocks and their partners 0.97-1.03x, with or without a Bayer camera (s43-bayer)."""
+    if samples.tricolor_pairs is None:
         return np.full(3, np.nan)
-    summed, halves = group_sums(samples.images, groups), group_sums(samples.images_halves, groups)
+    summed, pairs = group_sums(samples.images, groups), group_sums(samples.images_pairs, groups)
     noise = np.full(3, np.nan)
     for c in range(3):
         seen = samples.tricolor[:, c]
         gains = channel_gains(summed[:, :, c], seen)
         power = float(np.mean(seen * seen))
         if power > 0:
-            residual = samples.tricolor_halves[:, c] - halves[:, :, c] @ gains
+            residual = samples.tricolor_pairs[:, c] - pairs[:, :, c] @ gains
             noise[c] = np.sqrt(np.mean(residual * residual) * samples.weight / power)
     return noise
 

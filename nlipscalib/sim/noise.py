@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.leds import Leds, led_shading, tricolor_colors
+from .bayer import apply_crosstalk
 
 if TYPE_CHECKING:  # named in hints only: the scene module imports the renderer's
     from .scene import CameraEffectsConfig, NoiseConfig
@@ -111,6 +112,7 @@ def auto_exposure(
     albedo: tuple[float, float, float],
     scale: float = 1.0,
     tricolor: bool = False,
+    crosstalk: tuple[tuple[float, ...], ...] | None = None,
 ) -> float:
     """Exposure making the undeformed dome well exposed, the same for every press of a scene.
 
@@ -122,6 +124,8 @@ def auto_exposure(
     albedo : (3,) coating albedo
     scale : NoiseConfig.exposure (1 = the calibrated exposure)
     tricolor : expose the tri-colour image instead (its channels sum several LEDs, so it needs less)
+    crosstalk : (3, 3) the camera's colour crosstalk (``sim.bayer.apply_crosstalk``), None for none: the light the
+        channels record, as the user exposes on them
 
     Returns
     -------
@@ -131,5 +135,7 @@ def auto_exposure(
     if tricolor:
         colours = tricolor_colors(len(lin))  # (L, 3)
         lin = np.einsum("lnc,lc->nc", lin, colours)[None]
+    if crosstalk is not None:
+        lin = apply_crosstalk(lin, crosstalk)
     per_led = np.percentile(lin.max(axis=-1), EXPOSURE_PERCENTILE, axis=1)
     return float(scale * EXPOSURE_TARGET / per_led.max())

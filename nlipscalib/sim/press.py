@@ -25,6 +25,7 @@ from ..core.capture import write_press
 from ..core.errors import PATH, ConfigError, check_flag, check_kind, check_whole
 from ..core.leds import tricolor_colors
 from ..core.press_folders import check_render_out, is_press_folder
+from .bayer import IDENTITY_CROSSTALK, apply_crosstalk, bayer_camera
 from .camera_effects import apply_lens
 from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
@@ -92,9 +93,12 @@ def scene_exposure(scene: SceneConfig, tricolor: bool = False) -> float:
     """Scale from linear radiance to fraction of full scale for this scene (see ``noise.auto_exposure``).
 
     The tri-colour image (``tricolor=True``) gets its own, shorter exposure: each of its channels sums
-    a third of the LEDs and would otherwise saturate.
+    a third of the LEDs and would otherwise saturate. A camera's colour crosstalk (``camera_effects.crosstalk``)
+    brightens its channels, and is exposed for as a user exposes the camera on its own frames.
     """
-    return _exposure(_geometry(scene), scene.leds, scene.coating.albedo, scene.noise.exposure, tricolor)
+    mix = scene.camera_effects.crosstalk
+    mix = None if mix == IDENTITY_CROSSTALK else mix  # none: the exposure to the bit as before crosstalk existed
+    return _exposure(_geometry(scene), scene.leds, scene.coating.albedo, scene.noise.exposure, tricolor, mix)
 
 
 @functools.lru_cache(maxsize=4 * CACHE_SIZE)
@@ -104,6 +108,7 @@ def _exposure(
     albedo: tuple[float, float, float],
     scale: float,
     tricolor: bool,
+    crosstalk: tuple[tuple[float, ...], ...] | None = None,
 ) -> float:
     # ~1 s of numpy at 640x480: once per scene, not per press
     gt = _reference_ground_truth(geometry)
@@ -114,7 +119,7 @@ def _exposure(
         # a diffuse coat seen from a lower-index housing looks (n_housing / n_gel)^2 as bright (the rest is
         # totally internally reflected): a user would expose for it
         scale *= (optics.gel_ior / optics.housing_ior) ** 2
-    return auto_exposure(gt.points[v], gt.normals[v], leds, albedo, scale, tricolor=tricolor)
+    return auto_exposure(gt.points[v], gt.normals[v], leds, albedo, scale, tricolor=tricolor, crosstalk=crosstalk)
 
 
 def tricolor_linear(images: np.ndarray) -> np.ndarray:
@@ -348,6 +353,10 @@ def camera_capture(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """What the camera stores of linear LED images: dark frame, LED images, tri-colour image.
 
+    The lens (defocus, vignetting), the filters' colour crosstalk (of the tri-colour frame's LED colours, and of
+    each white LED image's), the sensor's noise and response, and, for a Bayer camera, its mosaic and demosaicing
+    (:mod:`.bayer`), in that order.
+
     Parameters
     ----------
     scene : SceneConfig -- camera effects, noise model, exposure
@@ -365,8 +374,10 @@ def camera_capture(
     seen = apply_lens(images, camera, effects)
     rng = np.random.default_rng(seed)
     dark = dark_frame(camera.shape, cfg, rng, effects)
-    leds = apply_noise(seen, exposure, cfg, rng, effects)
-    tri = apply_noise(tricolor_linear(seen), tri_exposure, cfg, rng, effects)
+    leds = apply_noise(apply_crosstalk(seen, effects.crosstalk), exposure, cfg, rng, effects)
+    tri = apply_noise(apply_crosstalk(tricolor_linear(seen), effects.crosstalk), tri_exposure, cfg, rng, effects)
+    if effects.bayer != "none":
+        dark, leds, tri = (bayer_camera(frames, effects.bayer, effects.demosaic) for frames in (dark, leds, tri))
     return dark, leds, tri, exposure, tri_exposure
 
 

@@ -21,7 +21,15 @@ from pathlib import Path
 from typing import Literal
 
 from ..core.camera import Camera
-from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file, to_mapping
+from ..core.config import (
+    OMIT_AT_DEFAULT,
+    check_count,
+    check_range,
+    check_size_pair,
+    from_mapping,
+    read_config_file,
+    to_mapping,
+)
 from ..core.errors import PATH, ConfigError, check_kind
 from ..core.leds import Led
 from ..core.sensor import MAX_EMITTER_DIAMETER_MM, SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
@@ -136,9 +144,31 @@ class CameraEffectsConfig:
     black_level_error: float = 3.0
     """The true black level differs from the one stated in the capture's response by this much, DN
     (the dark frame carries the true one)."""
+    bayer: Literal["none", "RGGB", "BGGR", "GRBG", "GBRG"] = dataclasses.field(
+        default="none", metadata={OMIT_AT_DEFAULT: True}
+    )
+    """A Bayer sensor's 2x2 colour filter pattern, from the frame's top-left pixel (``none``: three colours per pixel,
+    as rendered). Every stored frame (dark, LED images, tri-colour) keeps each pixel's own channel and is demosaiced
+    again by OpenCV (:mod:`nlipscalib.sim.bayer`), as a webcam delivers it."""
+    demosaic: Literal["edge_aware", "bilinear"] = dataclasses.field(
+        default="edge_aware", metadata={OMIT_AT_DEFAULT: True}
+    )
+    """How a ``bayer`` camera interpolates the missing colours (:data:`nlipscalib.sim.bayer.DEMOSAIC_METHODS`):
+    OpenCV's edge-aware demosaicing, like a webcam's image signal processor, or bilinear."""
+    crosstalk: tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]] = (
+        dataclasses.field(default=((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)), metadata={OMIT_AT_DEFAULT: True})
+    )
+    """The camera's colour crosstalk, ``[channel][light colour]``: the share of each colour's light each channel
+    records, applied to the linear light before the sensor's noise (identity: none;
+    :data:`nlipscalib.sim.bayer.TYPICAL_CROSSTALK`, a typical webcam sensor's, ``nlips render --crosstalk typical``)."""
 
     def __post_init__(self):
         check_range("defocus_px", self.defocus_px, 0.0, 50.0)
+        for c, row in enumerate(self.crosstalk):
+            for s, share in enumerate(row):
+                check_range(f"crosstalk[{c}][{s}]", share, 0.0, 1.0)
+        if not all(self.crosstalk[c][c] > 0 for c in range(3)):
+            raise ConfigError(f"camera_effects.crosstalk {self.crosstalk}: a channel records none of its own colour")
         check_range("response_gamma", self.response_gamma, 0.2, 5.0)
         check_range("black_level_error", self.black_level_error, -1000.0, 1000.0)
         if self.vignetting == "polynomial":

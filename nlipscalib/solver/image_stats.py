@@ -86,7 +86,8 @@ def image_noise(images: np.ndarray | Sequence[np.ndarray], valid: np.ndarray) ->
     filtered image over sqrt(36), the mask's squared norm). The medians are taken on a regular subsample
     of the gel, at least ``NOISE_SAMPLES`` pixels where the gel has them (a statistic: the MAD of 2x10^4
     samples is within ~1 % of the MAD of all of them, and 36 estimates are pooled; a 640x480 dome keeps
-    one pixel in 8, a 96x72 one all).
+    one pixel in 8, a 96x72 one all). Images of a Bayer camera (:func:`bayer_noise`, more than
+    :data:`BAYER_NOISE_RATIO` times this) get that estimate instead.
     """
     import cv2
 
@@ -104,5 +105,54 @@ def image_noise(images: np.ndarray | Sequence[np.ndarray], valid: np.ndarray) ->
             out.append(mad_scale(f, dtype=np.float32) / 6.0)  # float32: the filtered image's precision
         return out
 
-    est = [e for per in threads.map_items(per_image, images) for e in per]
-    return float(np.median(est))
+    est = float(np.median([e for per in threads.map_items(per_image, images) for e in per]))
+    first = images[0] if len(images) else None
+    if first is None or not bayer_noise([first], inner) > BAYER_NOISE_RATIO * max(est, np.finfo(np.float32).tiny):
+        return est
+    return bayer_noise(images, inner)
+
+
+BAYER_NOISE_RATIO = 2.0
+""":func:`image_noise` takes :func:`bayer_noise` where the first image's is more than this times the plain estimate
+(of all images): a Bayer camera's demosaicing interpolates each colour linearly between the pixels that record it,
+which the plain 3x3 mask cancels at three pixels in four (red, blue) or one in two (green): its median filtered value
+was 0, the noise 3.5e-8 for 0.016 of an RGB camera's on the same light, and the solve anchored no pixel of the
+undeformed gel (depth 0.13 mm off, 0.045 -> 0.19 mm RMSE on the contact; docs/experiments/RESULTS.md, s43-bayer).
+On independent pixels the two agree (within a few %), and the plain one is kept: every three-colour capture's
+numbers as before."""
+
+
+def bayer_noise(images: np.ndarray | Sequence[np.ndarray], inner: np.ndarray) -> float:
+    """Noise sigma of linear images of a camera whose pixels come in a 2x2 pattern (a Bayer mosaic, demosaiced): the
+    Immerkaer mask over every second pixel (its 9 taps 2 px apart, so each filtered value mixes pixels of one of
+    the pattern's four positions), its robust spread taken per position and channel, the largest of the four
+    positions per channel (the pixels that record that colour: their own raw noise; the others are interpolated
+    and hold less), then the median over images and channels.
+
+    Parameters
+    ----------
+    images : (L, H, W, 3) float, or a sequence of L (H, W, 3) float -- linear images.
+    inner : (H, W) bool -- pixels to measure on (the gel, eroded).
+
+    Returns
+    -------
+    float
+    """
+    import cv2
+
+    kernel = np.zeros((5, 5), np.float32)
+    kernel[::2, ::2] = [[1, -2, 1], [-2, 4, -2], [1, -2, 1]]
+    width = inner.shape[1]
+    phases = []
+    for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        sub = np.flatnonzero(masks.sample_grid(inner[dy::2, dx::2], NOISE_SAMPLES // 4))
+        rows, cols = np.divmod(sub, inner[dy::2, dx::2].shape[1])
+        phases.append((2 * rows + dy) * width + 2 * cols + dx)
+
+    def per_image(img: np.ndarray):
+        filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
+        flat = filtered.reshape(-1, filtered.shape[-1])
+        spread = [[mad_scale(flat[index, c], dtype=np.float32) / 6.0 for c in range(flat.shape[1])] for index in phases]
+        return list(np.max(spread, axis=0)) if all(len(index) for index in phases) else [0.0]
+
+    return float(np.median([e for per in threads.map_items(per_image, images) for e in per]))

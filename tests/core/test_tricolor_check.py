@@ -207,11 +207,12 @@ def test_a_camera_whose_blocks_keep_more_noise_than_the_floor_fits_and_an_exchan
     assert warned is not None and "does not hold the light" in warned
 
 
-def test_the_noise_misfit_measured_between_block_halves_is_the_clean_misfit_and_ignores_an_exchange(tmp_path):
+def test_the_noise_misfit_measured_between_pairs_of_blocks_is_the_clean_misfit_and_ignores_an_exchange(tmp_path):
     """Known answers of the noise measure: a clean noisy frame's misfit is its noise (within 20 %); an exchange,
-    smooth over a block, leaves the measure as it was; noiseless frames measure ~0; 1 px blocks measure nothing."""
+    smooth over the frame, leaves the measure as it was; noiseless frames measure ~0; 1 px blocks measure nothing;
+    each block's partners are the gel's blocks 2 to its left and right, else above and below."""
     from nlipscalib.core import Press
-    from nlipscalib.core.tricolor_check import allowed_misfit, block_halves, block_samples, gel_samples, noise_misfits
+    from nlipscalib.core.tricolor_check import allowed_misfit, block_samples, gel_samples, noise_misfits, partner_cells
 
     def samples(noise, order=range(12)):
         frames, camera, leds, response = _noisy_frames(np.random.default_rng(7), noise, order)
@@ -226,7 +227,7 @@ def test_the_noise_misfit_measured_between_block_halves_is_the_clean_misfit_and_
     assert allowed_misfit(noise) == pytest.approx(max(0.03, 1.5 * np.max(noise)))
     swapped = noisy._replace(
         images=noisy.images[[0, 1, 2, 4, 3, *range(5, 12)]],
-        images_halves=noisy.images_halves[[0, 1, 2, 4, 3, *range(5, 12)]],
+        images_pairs=noisy.images_pairs[[0, 1, 2, 4, 3, *range(5, 12)]],
     )
     assert np.max(channel_misfits(swapped.tricolor, swapped.images, groups)) > 0.05
     assert np.allclose(noise_misfits(swapped, groups), noise, rtol=0.1)
@@ -234,9 +235,9 @@ def test_the_noise_misfit_measured_between_block_halves_is_the_clean_misfit_and_
         np.max(noise_misfits(samples(0.0), groups)) < 0.002
         and allowed_misfit(noise_misfits(samples(0.0), groups)) == 0.03
     )
-    assert np.all(np.isnan(noise_misfits(noisy._replace(tricolor_halves=None), groups)))
-    half = block_halves(8)  # 2x2 px cells in a checkerboard: 32 px each, both centred on the block
-    dy, dx = np.divmod(np.arange(64), 8)
-    assert half.sum() == 32 and dy[half].mean() == dy[~half].mean() == 3.5 and dx[half].mean() == 3.5
-    assert half.reshape(8, 8)[:2, :2].all() and not half.reshape(8, 8)[:2, 2:4].any()
-    assert block_halves(2).tolist() == [True, False, False, True] and block_halves(1) is None
+    assert np.all(np.isnan(noise_misfits(noisy._replace(tricolor_pairs=None), groups)))
+    # a grid of 5 x 6 blocks (side 2 in a 10 x 12 frame), the gel all of it but block 2 (row 0, column 2) and row 4's
+    # columns 2-5; partners 2 blocks left and right, else above and below, both on the gel
+    gel = np.array([c for c in range(26) if c != 2])
+    found = partner_cells(np.array([0, 4, 8, 12, 15]), gel, (10, 12), 2).tolist()
+    assert found == [[-1, -1], [-1, -1], [6, 10], [0, 24], [13, 17]]

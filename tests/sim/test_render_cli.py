@@ -194,3 +194,42 @@ def test_render_help_states_the_defaults_a_render_takes():
     assert f"{IndenterConfig().size:g} mm {pose['indenter']} {pose['depth']:g} mm deep" in text
     r = scene.render
     assert f"nlipstac: {scene.camera.width}x{scene.camera.height}, {r.spp} spp, direct light" in text and r.bounces == 0
+
+
+def test_render_through_a_bayer_camera_records_it_and_its_tricolour_frame_fits(tmp_path, capsys):
+    """`nlips render --bayer RGGB --crosstalk typical`: the press's scene records the camera (pattern, crosstalk; the
+    default demosaicing left out), its frames are demosaiced (neighbouring pixels' colours mixed), and the tri-colour
+    check holds its frame as it holds a three-colour camera's; a pattern that is none is refused (argparse's usage and
+    its line naming the choices), exit 2."""
+    from nlipscalib.core.tricolor_check import press_tricolor_verdict
+    from nlipscalib.sim.bayer import TYPICAL_CROSSTALK
+
+    out = tmp_path / "webcam"
+    assert (
+        main(
+            [
+                "render",
+                "--undeformed",
+                *TINY,
+                "--seed",
+                "3",
+                "--bayer",
+                "RGGB",
+                "--crosstalk",
+                "typical",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    press = load_press(out)
+    effects = press.meta["provenance"]["scene"]["camera_effects"]
+    assert effects["bayer"] == "RGGB" and effects["crosstalk"] == [list(row) for row in TYPICAL_CROSSTALK]
+    assert "demosaic" not in effects
+    assert press_tricolor_verdict(press).kind in ("fits", "not judged")
+    with pytest.raises(SystemExit) as refused:
+        main(["render", "--undeformed", *TINY, "--bayer", "RGBG", "--out", str(tmp_path / "bad")])
+    assert refused.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "argument --bayer: invalid choice: 'RGBG'" in last and "'RGGB'" in last
