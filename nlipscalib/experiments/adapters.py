@@ -172,8 +172,9 @@ def solve(
     roi : "truth" (true contact box), "auto" (the solver's contact detector) or "full"
     options : SolverOptions or None
     albedo : coating reflectance to impose on the interreflection term, or None (fitted from the data)
-    disks : (emitters, radius mm): ``leds`` solved as disks of that radius, each at its emitter (None: ``leds``
-        themselves), as ``nlips solve --leds FILE --led-model disks`` solves an LED file's fitted disks; None: points
+    disks : ``leds``' disks, (emitters or None for ``leds`` themselves, radius mm), which the pipeline's
+        ``--led-model auto`` solves with where it takes disks for the press's design, as an LED file's fitted disks
+        (``nlips solve --leds FILE``); None: points
 
     Returns
     -------
@@ -200,19 +201,10 @@ def solve(
             "dent_interreflection": interreflection == "dent",
             "coating_albedo": albedo,
             "interreflection": "off" if interreflection == "off" else "on",
-        }
-        | _disk_keywords(disks),
+        },
+        led_disks=disks,  # solved as disks where --led-model auto takes disks for the press (pipeline.for_press)
     )
     return load_reconstruction(out, press.camera.shape)
-
-
-def _disk_keywords(disks: tuple[Leds | None, float] | None) -> dict:
-    """solve_press's keywords of given LEDs solved as disks; none for points (a point solve's record and result
-    stay as they were)."""
-    if disks is None:
-        return {}
-    emitters, radius = disks
-    return {"led_radius": float(radius), "emitters": None if emitters is None else tuple(emitters)}
 
 
 def score(result: Reconstruction, ground_truth: GroundTruth) -> dict:

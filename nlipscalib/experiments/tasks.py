@@ -648,12 +648,12 @@ def _solve_one(
 def _solver_leds(
     adapters: ModuleType, out: Path, task: Task, press: Press, spec: dict
 ) -> tuple[tuple[Led, ...] | None, tuple[tuple[Led, ...] | None, float] | None]:
-    """The LEDs a solve variant gives the solver (None: the capture's own, which the pipeline's ``--led-model auto``
-    models) and, where they are solved as disks, (their emitters or None for themselves, radius mm); None: points.
+    """The LEDs a solve variant gives the solver (None: the capture's own) and their disks, (emitters or None for
+    themselves, radius mm), or None: points.
 
-    The design and calibrated rows follow ``--led-model auto`` as the true row's solve does
-    (:data:`GIVEN_LEDS_MODEL`): the design's LEDs as disks of its declared size where auto takes disks for the
-    press, a calibration's LEDs as the disks it fitted, which it fits where auto takes disks."""
+    The pipeline's ``--led-model auto`` solves them as the true row's own LEDs (:data:`GIVEN_LEDS_MODEL`): the
+    design's LEDs as disks of its declared size where auto takes disks for the press, a calibration's LEDs as the
+    disks it fitted, which it fits where auto takes disks for the design (``_run_calibration``)."""
     err = {
         "position_mm": spec["position_error_mm"],
         "direction_deg": spec["direction_error_deg"],
@@ -661,8 +661,8 @@ def _solver_leds(
     }
     if spec["leds"] == "true":
         return None, None  # the capture's own LEDs (the twin's true ones)
-    if spec["leds"] == "design":
-        diameter = adapters.auto_led_diameter(press.folder)
+    if spec["leds"] == "design":  # the LEDs at their disks' centres, as the design declares their size
+        diameter = float((task.scene.get("leds") or {}).get("emitter_diameter") or 0.0)
         return adapters.perturb_leds(press.leds, **_error_args(err)), ((None, diameter / 2) if diameter > 0 else None)
     from ..core.leds import Led
 

@@ -296,6 +296,16 @@ def flat_cube(tmp_path_factory):
     return load_press(render_press(scene, press, tmp_path_factory.mktemp("flat") / "cube", seed=3))
 
 
+def _moved(leds, mm: float) -> tuple:
+    """``leds`` each moved ``mm`` along its axis (disks told apart from the point LEDs)."""
+    import dataclasses
+
+    return tuple(
+        dataclasses.replace(led, position=tuple(np.add(led.position, np.multiply(led.direction, mm)).tolist()))
+        for led in leds
+    )
+
+
 def _solve(folder, out, *args: str) -> tuple[dict, np.ndarray]:
     """``nlips solve FOLDER ARGS``: the recorded solver keywords and the solved depth."""
     import json
@@ -326,10 +336,14 @@ def test_the_flat_pads_own_leds_are_solved_as_its_designs_disks_by_default(flat_
     assert not np.array_equal(np.nan_to_num(points_depth), np.nan_to_num(auto_depth))
 
 
-def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tmp_path, caplog, monkeypatch):
+def test_auto_solves_points_below_the_spread_and_an_led_file_by_the_designs_choice(
+    rim_sphere, tmp_path, caplog, monkeypatch
+):
     """The hemisphere's own LEDs (spread 0.0072 in its gel-filling view) stay points: here the rim view's 0.014
     against a level raised above it, which solves the ``--led-model points`` result bit for bit and says why at DEBUG
-    (-v); an LED file's LEDs are points under auto as before; a subset of the capture's own LEDs is judged too."""
+    (-v); an LED file's LEDs follow the design's choice: its fitted disks where auto takes disks, points below the
+    level; a file of point LEDs is solved as points all the same, said in one INFO line (the user's file wins); a
+    subset of the capture's own LEDs is judged too."""
     import json
     import logging
 
@@ -350,11 +364,20 @@ def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tm
     assert "led_radius" not in auto and auto == points
     np.testing.assert_array_equal(auto_depth, points_depth)
     leds = [led.to_dict() for led in rim_sphere.leds]
-    led_file = tmp_path / "leds.json"
-    led_file.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": leds}}), encoding="utf-8")
+    disks = [led.to_dict() for led in _moved(rim_sphere.leds, 0.05)]  # told apart from the points in the record
+    led_file, points_file = tmp_path / "leds.json", tmp_path / "points.json"
+    led_file.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": disks}}), encoding="utf-8")
+    points_file.write_text(json.dumps({"leds": leds}), encoding="utf-8")
+    below, _ = _solve(rim_sphere.folder, tmp_path / "below", "--leds", str(led_file))
+    assert "led_radius" not in below  # the design takes points: the file's point LEDs
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.012)
+    caplog.clear()
     with_file, _ = _solve(rim_sphere.folder, tmp_path / "file", "--leds", str(led_file))
-    assert "led_radius" not in with_file
+    assert with_file["led_radius"] == RADIUS and with_file["emitters"] == disks
+    as_points, _ = _solve(rim_sphere.folder, tmp_path / "points_file", "--leds", str(points_file))
+    assert "led_radius" not in as_points
+    (said,) = [r for r in caplog.records if f"{points_file}'s LEDs solved as points, as given" in r.getMessage()]
+    assert said.levelname == "INFO" and "above 1.2 %" in said.getMessage(), said.getMessage()
     subset, _ = _solve(rim_sphere.folder, tmp_path / "subset", "--leds", "1,2,3,4,5,6,7,8")
     assert subset["led_radius"] == RADIUS
 
