@@ -396,3 +396,45 @@ def test_calibrate_records_disks_where_auto_solves_disks_and_nothing_where_point
     assert not _solves_disks("points", None, folder)
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
     assert not _solves_disks("auto", None, folder)
+
+
+def test_an_led_file_or_led_values_follow_the_designs_choice_under_auto(rim_sphere, tmp_path, monkeypatch):
+    """Given LEDs under ``--led-model auto`` take the model the design's own LEDs get (s43-expauto): an LED file's
+    fitted disks and LED values' disks (``led_disks``, the experiments' design and calibrated rows) where it takes
+    disks, points below the level and for a file or values without disks; ``nlips calibrate`` records "disks" for such
+    a file. Disks of no size or of another count are one line naming ``led_disks``."""
+    import json
+
+    from nlipscalib.cli.calibration import _solves_disks
+    from nlipscalib.core import tolerances
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.pipeline.settings import for_press, make_settings
+
+    folder, leds = rim_sphere.folder, rim_sphere.leds
+    moved = _moved(leds, 0.05)
+    disk_file, points_file = tmp_path / "disks.json", tmp_path / "points.json"
+    as_dicts = [led.to_dict() for led in leds]
+    disk_file.write_text(
+        json.dumps({"leds": as_dicts, "emitters": {"radius_mm": RADIUS, "leds": [m.to_dict() for m in moved]}}),
+        encoding="utf-8",
+    )
+    points_file.write_text(json.dumps({"leds": as_dicts}), encoding="utf-8")
+
+    def keywords(**given) -> dict:
+        return dict(for_press(folder, make_settings(**given)).solver_keywords)
+
+    disks_of_values = keywords(leds=leds, led_disks=(moved, RADIUS))
+    assert disks_of_values["led_radius"] == RADIUS and disks_of_values["emitters"] == tuple(m.to_dict() for m in moved)
+    themselves = keywords(leds=leds, led_disks=(None, RADIUS))
+    assert themselves["led_radius"] == RADIUS and themselves["emitters"] is None
+    assert keywords(leds=str(disk_file))["led_radius"] == RADIUS
+    assert "led_radius" not in keywords(leds=leds) and "led_radius" not in keywords(leds=str(points_file))
+    assert "led_radius" not in keywords(leds=leds, led_disks=(None, RADIUS), led_model="points")
+    assert _solves_disks("auto", str(disk_file), folder) and not _solves_disks("auto", str(points_file), folder)
+    monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)  # the design's own LEDs go points
+    assert "led_radius" not in keywords(leds=leds, led_disks=(moved, RADIUS))
+    assert "led_radius" not in keywords(leds=str(disk_file))
+    for bad, said in (((None, 0.0), "radius must be a number > 0 mm"), ((moved[:3], RADIUS), "3 disk LEDs given")):
+        with pytest.raises(ConfigError, match="led_disks: ") as caught:
+            make_settings(leds=leds, led_disks=bad)
+        assert said in str(caught.value)
