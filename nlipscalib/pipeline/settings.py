@@ -108,6 +108,8 @@ def make_settings(
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
     if led_model not in ("auto", "points", "disks"):
         raise ConfigError(f"led_model must be 'auto', 'points' or 'disks', got {led_model!r}")
+    if led_disks is not None and (led_values is None or leds_file is not None):  # a file's disks are its own
+        raise ConfigError("led_disks: the disks of LED values given as leds (a sequence of Led), none given")
     chosen = "led_radius" in (solver_keywords or {})  # the caller's own disks or points: taken as they are
     own = leds_file is None and led_values is None and not chosen
     given = not own and not chosen

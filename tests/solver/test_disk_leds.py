@@ -434,7 +434,11 @@ def test_an_led_file_or_led_values_follow_the_designs_choice_under_auto(rim_sphe
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)  # the design's own LEDs go points
     assert "led_radius" not in keywords(leds=leds, led_disks=(moved, RADIUS))
     assert "led_radius" not in keywords(leds=str(disk_file))
-    for bad, said in (((None, 0.0), "radius must be a number > 0 mm"), ((moved[:3], RADIUS), "3 disk LEDs given")):
+    for given, bad, said in (
+        (leds, (None, 0.0), "radius must be a number > 0 mm"),
+        (leds, (moved[:3], RADIUS), "3 disk LEDs given"),
+        (str(disk_file), (None, RADIUS), "none given"),
+    ):
         with pytest.raises(ConfigError, match="led_disks: ") as caught:
-            make_settings(leds=leds, led_disks=bad)
+            make_settings(leds=given, led_disks=bad)
         assert said in str(caught.value)
