@@ -34,8 +34,9 @@ RADIUS = 1.8
 
 @pytest.fixture(scope="module")
 def rows(tmp_path_factory) -> dict[tuple[str, str], dict]:
-    """Q3 of the hemisphere and the flat pad at 96x72, one sphere press each, kept whole: per (shape, leds) its evaluation
-    with the solve's recorded solver keywords (``keywords``) and, for calibrated rows, its calibration's result."""
+    """Q3 of the hemisphere and the flat pad at 96x72, one sphere press each, kept whole: per (shape, leds) its
+    evaluation with the solve's recorded solver keywords (``keywords``) and, for calibrated rows, its calibration's
+    result."""
     pytest.importorskip("mitsuba")
     tmp = tmp_path_factory.mktemp("rows")
     config = tmp / "q3.toml"
