@@ -69,7 +69,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="diameter of each LED's light-emitting area, mm (WS2812B: 3.6): also fit the LEDs as such disks, "
         "the physical LEDs to compare with the CAD (written as 'emitters'; solves take them with --led-model "
-        "disks, else the point LEDs). "
+        "disks, and by default where the design's own LEDs are solved as disks: the flat pad, oblate, capsule; else "
+        "the point LEDs). "
         "Default: the capture's sensor design's leds.emitter_diameter (the shipped designs: 3.6), point LEDs only "
         "where it declares none; 0: point LEDs only",
     )

@@ -237,9 +237,9 @@ def _check_disks(leds: str | None, reference: Path) -> None:
 
 
 def _solves_disks(led_model: str, leds: str | None, reference: Path) -> bool:
-    """Whether ``--led-model`` solves the presses' LEDs as disks: "disks", or "auto" on the capture's own LEDs of a
-    design whose point LEDs miss its disks unevenly (:func:`nlipscalib.pipeline.settings.for_press`; the presses are
-    of the reference's design, ``reference_fits``)."""
+    """Whether ``--led-model`` solves the presses' LEDs as disks: "disks", or "auto" on a design whose point LEDs
+    miss its disks unevenly, with the capture's own LEDs or an LED file's fitted disks
+    (:func:`nlipscalib.pipeline.settings.for_press`; the presses are of the reference's design, ``reference_fits``)."""
     from ..pipeline.settings import for_press, make_settings
 
     if led_model != "auto":

@@ -97,17 +97,31 @@ def perturb_leds(leds: Leds, position_mm: float = 0.0, direction_deg: float = 0.
     return tuple(out)
 
 
-def calibrate(reference_folder: Path, initial: Leds) -> tuple[tuple[Led, ...], dict]:
-    """LED self-calibration from the undeformed dome's capture, starting from ``initial`` LEDs.
+def auto_led_diameter(folder: Path) -> float:
+    """The diameter (mm) of disks ``--led-model auto`` solves ``folder``'s LEDs as, 0 for points: its design's
+    declared ``leds.emitter_diameter`` where point LEDs miss those disks' light unevenly over its gel (the flat pad,
+    oblate and capsule), 0 elsewhere (:func:`nlipscalib.pipeline.led_choice.auto_led_diameter`, the one rule of
+    ``nlips solve``: the design and calibrated rows take the model the true row's plain solve takes)."""
+    from ..pipeline.led_choice import auto_led_diameter as choose
 
-    Returns the calibrated LEDs (camera frame) and a JSON-able summary (RMS residual per LED, the fit's
-    ``quality``: its residual over the images' noise, ``reliable``).
+    return choose(folder)
+
+
+def calibrate(
+    reference_folder: Path, initial: Leds, led_diameter: float = 0.0
+) -> tuple[tuple[Led, ...], tuple[Led, ...], dict]:
+    """LED self-calibration from the undeformed dome's capture, starting from ``initial`` LEDs, as ``nlips
+    calibrate-leds``: with ``led_diameter`` (mm) > 0 the LEDs also fitted as disks of that size.
+
+    Returns the calibrated point LEDs (camera frame), their disks (empty for ``led_diameter`` 0) and a JSON-able
+    summary (RMS residual per LED, the fit's ``quality``: its residual over the images' noise, ``reliable``).
     """
     from ..solver import calibrate_leds
 
-    cal = calibrate_leds(load(reference_folder), initial=initial)
+    cal = calibrate_leds(load(reference_folder), initial=initial, led_radius=led_diameter / 2)
     quality = {k: cal.quality[k] for k in ("median_ratio", "threshold", "reliable")}
-    return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo), "quality": quality}
+    info = {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo), "quality": quality}
+    return cal.leds, tuple(cal.emitters or ()), info
 
 
 def solver_options(overrides: dict) -> SolverOptions:
@@ -138,6 +152,7 @@ def solve(
     roi: str = "truth",
     options: SolverOptions | None = None,
     albedo: float | tuple[float, float, float] | None = None,
+    disks: tuple[Leds | None, float] | None = None,
 ) -> Reconstruction:
     """NLiPs on one press through the one solving path (``pipeline.solve_folder``) into ``out``.
 
@@ -157,6 +172,9 @@ def solve(
     roi : "truth" (true contact box), "auto" (the solver's contact detector) or "full"
     options : SolverOptions or None
     albedo : coating reflectance to impose on the interreflection term, or None (fitted from the data)
+    disks : ``leds``' disks, (emitters or None for ``leds`` themselves, radius mm), which the pipeline's
+        ``--led-model auto`` solves with where it takes disks for the press's design, as an LED file's fitted disks
+        (``nlips solve --leds FILE``); None: points
 
     Returns
     -------
@@ -184,6 +202,7 @@ def solve(
             "coating_albedo": albedo,
             "interreflection": "off" if interreflection == "off" else "on",
         },
+        led_disks=disks,  # solved as disks where --led-model auto takes disks for the press (pipeline.for_press)
     )
     return load_reconstruction(out, press.camera.shape)
 

@@ -52,6 +52,14 @@ any other versions enter the hash (the first: learn.dataset.FRAME_GAIN_RULE, 202
 samples of a press dimmer than its undeformed capture)."""
 
 
+GIVEN_LEDS_MODEL = "auto"
+"""The LED model of the calibrations and of the solves with given LEDs (the design and calibrated rows) since
+2026-12-08 (s43-expauto): ``--led-model auto``'s, the design's declared disks where its point LEDs miss them unevenly
+over its gel (flat pad, oblate, capsule), points elsewhere, as the true rows' solves since s42 (before: points
+always). In the hashes of the tasks that calibrate or solve with given LEDs, with the design's declared LED size
+they now read, so a work folder's earlier point results of those rows are made again; the true rows' keep theirs."""
+
+
 TASK_CODE = {
     "reference": ("core", "sim"),
     "calibration": ("core", "sim", "solver"),
@@ -193,8 +201,12 @@ class Task:
 
         d = dataclasses.asdict(self)
         del d["keep_old"]
-        # the design's LED size: no task reads it (adapters.calibrate fits point LEDs), so the hashes stay
+        # the design's LED size: the true rows' solves read it (since s42) but their hashes stay as they were
         d["scene"] = rendered_scene(d["scene"])
+        if self.kind == "calibration" or any(ev["solve"]["leds"] != "true" for ev in self.evaluations):
+            # the given LEDs' model and the size it reads (GIVEN_LEDS_MODEL's why)
+            declared = (self.scene.get("leds") or {}).get("emitter_diameter")
+            d["given_leds"] = {"model": GIVEN_LEDS_MODEL, "emitter_diameter": declared}
         if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
             del d["samples"]
         elif SAMPLE_RULES != RULES_HASHED_SILENTLY:
@@ -467,8 +479,13 @@ def _run_calibration(task: Task, out: Path, threads: int, keep: bool) -> dict:
 
     ref = reference_folder(out, task.scene)
     design = adapters.perturb_leds(adapters.load(ref).leds, **_error_args(task.led_error))
-    leds, info = adapters.calibrate(ref, design)
-    return {"led_error": task.led_error, "leds": [led.to_dict() for led in leds], "calibration": info}
+    # the model --led-model auto solves the design's LEDs as: its disks fitted too where it takes disks
+    diameter = adapters.auto_led_diameter(ref)
+    leds, disks, info = adapters.calibrate(ref, design, diameter)
+    body = {"led_error": task.led_error, "leds": [led.to_dict() for led in leds], "calibration": info}
+    if disks:  # as an LED file holds them (docs/formats.md); a point calibration's result stays as it was
+        body["emitters"] = {"radius_mm": diameter / 2, "leds": [led.to_dict() for led in disks]}
+    return body
 
 
 def _error_args(err: dict) -> dict:
@@ -611,11 +628,12 @@ def _solve_one(
     """Solve one variant into PRESS/solves/<key> (pipeline) and score it; a failure is a result too."""
     t = time.perf_counter()
     try:
-        leds = _solver_leds(adapters, out, task, press, spec)
+        leds, disks = _solver_leds(adapters, out, task, press, spec)
         result = adapters.solve(
             press,
             out=press.folder / SOLVES_DIR / key,
             leds=leds,
+            disks=disks,
             interreflection=spec["interreflection"],
             reference=reference,
             roi=spec["roi"],
@@ -640,20 +658,33 @@ def _solve_one(
     }
 
 
-def _solver_leds(adapters: ModuleType, out: Path, task: Task, press: Press, spec: dict) -> tuple[Led, ...] | None:
+def _solver_leds(
+    adapters: ModuleType, out: Path, task: Task, press: Press, spec: dict
+) -> tuple[tuple[Led, ...] | None, tuple[tuple[Led, ...] | None, float] | None]:
+    """The LEDs a solve variant gives the solver (None: the capture's own) and their disks, (emitters or None for
+    themselves, radius mm), or None: points.
+
+    The pipeline's ``--led-model auto`` solves them as the true row's own LEDs (:data:`GIVEN_LEDS_MODEL`): the
+    design's LEDs as disks of its declared size where auto takes disks for the press, a calibration's LEDs as the
+    disks it fitted, which it fits where auto takes disks for the design (``_run_calibration``)."""
     err = {
         "position_mm": spec["position_error_mm"],
         "direction_deg": spec["direction_error_deg"],
         "seed": spec["error_seed"],
     }
     if spec["leds"] == "true":
-        return None  # the capture's own LEDs (the twin's true ones)
-    if spec["leds"] == "design":
-        return adapters.perturb_leds(press.leds, **_error_args(err))
+        return None, None  # the capture's own LEDs (the twin's true ones)
+    if spec["leds"] == "design":  # the LEDs at their disks' centres, as the design declares their size
+        diameter = float((task.scene.get("leds") or {}).get("emitter_diameter") or 0.0)
+        return adapters.perturb_leds(press.leds, **_error_args(err)), ((None, diameter / 2) if diameter > 0 else None)
     from ..core.leds import Led
 
     cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text(encoding="utf-8"))
-    return tuple(Led.from_dict(d) for d in cal["leds"])
+    leds = tuple(Led.from_dict(d) for d in cal["leds"])
+    emitters = cal.get("emitters")
+    if not emitters:  # a point calibration (auto took points for the design): solved as points
+        return leds, None
+    return leds, (tuple(Led.from_dict(d) for d in emitters["leds"]), float(emitters["radius_mm"]))
 
 
 def _save_maps(path: Path, arrays: dict[str, np.ndarray]) -> None:

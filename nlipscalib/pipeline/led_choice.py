@@ -24,7 +24,9 @@ SPREAD_SAMPLES = 1000
 quarter of the CPU: 7-8 ms for 12 LEDs)."""
 
 
-def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = None) -> float:
+def auto_led_diameter(
+    folder: str | Path, led_subset: tuple[int, ...] | None = None, given: tuple[str, bool] | None = None
+) -> float:
     """The diameter (mm) of disks a ``--led-model auto`` solve of ``folder`` with its own LEDs takes them as, or 0
     for points: the design's declared ``leds.emitter_diameter`` where the point LEDs miss those disks' light over the
     undeformed gel by a spread above :data:`~nlipscalib.core.tolerances.POINT_LED_SPREAD_FOR_DISKS` (the shipped
@@ -35,6 +37,9 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
     ----------
     folder : a press folder (meta.json, reference.npz).
     led_subset : 0-based indices of the LEDs solved with, or None for all.
+    given : LEDs given instead of the capture's (an LED file), judged by the design's choice all the same: (what
+        they are in words, "leds.json's LEDs"; whether they hold disks). Where the design takes disks the line says
+        they are solved as their disks, or as points where they hold none (a user's point LEDs are kept).
 
     Returns
     -------
@@ -62,15 +67,30 @@ def auto_led_diameter(folder: str | Path, led_subset: tuple[int, ...] | None = N
     spread = _spread(optics.reference, optics.camera, leds, diameter)
     limit = tolerances.POINT_LED_SPREAD_FOR_DISKS
     disks = spread > limit
-    how = f"as disks of its design's {diameter:g} mm" if disks else "as points"
     side = "above" if disks else "not above"
     _say(
-        f"{diameter} {spread:.4f} {[led.to_dict() for led in leds]}",
-        f"{folder}: LEDs solved {how} (--led-model auto: as points they miss the {diameter:g} mm disks' light over "
-        f"this gel by {100 * spread:.2f} % rms, {side} {100 * limit:.1f} %; --led-model points|disks to choose)",
+        f"{diameter} {spread:.4f} {[led.to_dict() for led in leds]} {given}",
+        f"{folder}: {_what(diameter, disks, given)} (--led-model auto: as points they miss the {diameter:g} mm disks' "
+        f"light over this gel by {100 * spread:.2f} % rms, {side} {100 * limit:.1f} %; --led-model points|disks to "
+        "choose)",
         logging.INFO if disks else logging.DEBUG,  # points, the model as ever: said with -v only (experiments' logs)
     )
     return diameter if disks else 0.0
+
+
+def _what(diameter: float, disks: bool, given: tuple[str, bool] | None) -> str:
+    """What the solve takes the LEDs as, in words, for :func:`auto_led_diameter`'s line."""
+    leds = "LEDs" if given is None else given[0]
+    if not disks:
+        return f"{leds} solved as points"
+    if given is None:
+        return f"LEDs solved as disks of its design's {diameter:g} mm"
+    if given[1]:
+        return f"{leds} solved as their disks"
+    return (
+        f"{leds} solved as points, as given: they come without fitted disks (`nlips calibrate-leds` fits them where "
+        "the design declares its LEDs' size, or with --led-diameter MM)"
+    )
 
 
 def _say(key: str, line: str, level: int = logging.INFO) -> None:

@@ -49,7 +49,12 @@ class SolveSettings:
     """The model of each press's own LEDs (no LED file): "disks" (``--led-model disks``: disks of the size its sensor
     design declares, ``leds.emitter_diameter``), "auto" (those disks where points miss their light unevenly over its
     gel, :func:`nlipscalib.pipeline.led_choice.auto_led_diameter`) or "points"; resolved per press by
-    :func:`for_press` (a disk solve's ``led_radius`` is then recorded, a point solve's settings are a point solve's)."""
+    :func:`for_press` (a disk solve's ``led_radius`` is then recorded, a point solve's settings are a point solve's).
+    "auto" with ``leds`` given (an LED file, LED values): the model the design's own LEDs get, ``given_disks``."""
+    given_disks: tuple | None = None
+    """The given ``leds``' disks, (emitters or None for ``leds`` themselves, radius mm): an LED file's fitted
+    ``emitters``, or those given with LED values; what ``design_leds`` "auto" solves with where the press's design
+    takes disks. None: the given LEDs are points, solved as points all the same (said once, INFO)."""
 
     def describe(self) -> dict:
         """JSON-able record of the settings (paths as given; values that decide the result)."""
@@ -78,15 +83,20 @@ def make_settings(
     backend: str = "numpy",
     solver_keywords: dict | None = None,
     led_model: str = "auto",
+    led_disks: tuple[Sequence[Led] | None, float] | None = None,
 ) -> SolveSettings:
     """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`.
+
+    ``led_disks`` with LED values (``leds``, a sequence of Led): their disks, (emitters in their order or None for
+    the values themselves, radius mm), as an LED file's ``emitters`` (the experiments' design and calibrated rows).
 
     ``led_model`` "disks": the LED file's fitted disk emitters and their radius are solve_press's ``emitters`` and
     ``led_radius`` (recorded in ``solver_keywords``), the NLiPs solves' and the indirect term's LEDs; its point LEDs
     stay ``leds`` (the ``--roi auto`` edge's point-LED misfit). Without an LED file (the capture's own LEDs, a
     subset of them too) they are the capture's LEDs as disks of its design's size, per press (:func:`for_press`).
-    "auto" (the default): an LED file's or given LEDs' points; the capture's own LEDs as those disks where its
-    design's point LEDs miss them unevenly (the flat pad, oblate and capsule designs), points otherwise."""
+    "auto" (the default): the capture's own LEDs as those disks where its design's point LEDs miss them unevenly (the
+    flat pad, oblate and capsule designs), points otherwise; given LEDs by the same rule, as their disks (an LED
+    file's fitted ``emitters``, ``led_disks``) where the design takes disks, a file of point LEDs as points."""
     from ..solver import SolverOptions
 
     if options is None:
@@ -98,10 +108,15 @@ def make_settings(
     subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
     if led_model not in ("auto", "points", "disks"):
         raise ConfigError(f"led_model must be 'auto', 'points' or 'disks', got {led_model!r}")
-    own = leds_file is None and led_values is None and "led_radius" not in (solver_keywords or {})
-    design_leds = led_model if own else "points"
+    if led_disks is not None and (led_values is None or leds_file is not None):  # a file's disks are its own
+        raise ConfigError("led_disks: the disks of LED values given as leds (a sequence of Led), none given")
+    chosen = "led_radius" in (solver_keywords or {})  # the caller's own disks or points: taken as they are
+    own = leds_file is None and led_values is None and not chosen
+    given = not own and not chosen
+    given_disks = _given_disks(leds_file, led_values, led_disks) if given and led_model != "points" else None
+    design_leds = led_model if own else ("auto" if given and led_model == "auto" else "points")
     if led_model == "disks" and not own:  # the NLiPs solves', the indirect term's and the contact map's LEDs
-        emitters, radius = disk_leds(leds_file)
+        emitters, radius = given_disks if given_disks is not None else disk_leds(leds_file)
         solver_keywords = {**(solver_keywords or {}), "led_radius": radius, "emitters": emitters}
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
     check_kind(
@@ -118,7 +133,28 @@ def make_settings(
         backend=backend,
         solver_keywords=tuple(sorted(_solver_keywords(solver_keywords).items())),
         design_leds=design_leds,
+        given_disks=given_disks if design_leds == "auto" else None,
     )
+
+
+def _given_disks(
+    leds_file: str | None, led_values: tuple[Led, ...] | None, led_disks: tuple[Sequence[Led] | None, float] | None
+) -> tuple | None:
+    """(emitters or None, radius mm) of given LEDs: an LED file's fitted disks, or ``led_disks`` given with LED
+    values; None where they hold none."""
+    from ..core.ledfile import read_led_file
+
+    if leds_file is not None:
+        led_file = read_led_file(leds_file)
+        return (led_file.emitters, led_file.emitter_radius) if led_file.emitters else None
+    if led_disks is None:
+        return None
+    emitters, radius = led_disks
+    if not (isinstance(radius, numbers.Real) and radius > 0):
+        raise ConfigError(f"led_disks: the disks' radius must be a number > 0 mm, got {radius!r}")
+    if emitters is not None and len(emitters) != len(led_values or ()):
+        raise ConfigError(f"led_disks: {len(emitters)} disk LEDs given for {len(led_values or ())} LEDs")
+    return (None if emitters is None else tuple(emitters), float(radius))
 
 
 def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
@@ -126,8 +162,10 @@ def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
     diameter its sensor design declares (``core.sensor.capture_led_diameter``: meta.json's design or the twin's
     scene), recorded as solve_press's ``led_radius``; with "auto", those disks where the point LEDs miss them unevenly
     over its gel and points otherwise (:func:`nlipscalib.pipeline.led_choice.auto_led_diameter`, which says so once
-    per design); otherwise ``settings`` unchanged. Every solve of a press goes through here (``nlips solve``,
-    ``demo``, ``calibrate``'s press solves, the experiments' press tasks), so one press gets one model.
+    per design), and given LEDs (an LED file, LED values) by the same choice: their disks (``given_disks``) where it
+    takes disks, points otherwise and where they hold none (said); otherwise ``settings`` unchanged. Every solve of a
+    press goes through here (``nlips solve``, ``demo``, ``calibrate``'s press solves, the experiments' press tasks),
+    so one press gets one model.
 
     Raises
     ------
@@ -140,10 +178,18 @@ def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
     from ..core.sensor import capture_led_diameter
     from .led_choice import auto_led_diameter
 
+    emitters = None
     if settings.design_leds == "auto":
-        diameter = auto_led_diameter(folder, settings.led_subset)
-        if not diameter > 0:  # points: the settings of a point solve, whose results and records stay as they were
-            return dataclasses.replace(settings, design_leds="points")
+        named = f"{settings.leds_file}'s LEDs" if settings.leds_file else "the given LEDs"
+        given = None if settings.leds is None else (named, settings.given_disks is not None)
+        diameter = auto_led_diameter(folder, settings.led_subset, given)
+        if not diameter > 0 or (given is not None and not settings.given_disks):
+            # points: the settings of a point solve, whose results and records stay as they were; a user's point
+            # LEDs (a file of no disks) are kept so, the line above says it
+            return dataclasses.replace(settings, design_leds="points", given_disks=None)
+        if given is not None:  # the given LEDs' own disks
+            emitters, radius = settings.given_disks
+            diameter = 2 * radius
     else:
         diameter, source = capture_led_diameter(read_meta(folder), str(Path(folder) / META_FILE))
         if not diameter > 0:
@@ -151,9 +197,12 @@ def for_press(folder: Path, settings: SolveSettings) -> SolveSettings:
                 f"{source}: --led-model disks without --leds needs the LEDs' size: give --leds FILE from `nlips "
                 "calibrate-leds REFERENCE --led-diameter MM`, or solve with --led-model points"
             )
-    keywords = {**dict(settings.solver_keywords), "led_radius": diameter / 2, "emitters": None}
+    keywords = {**dict(settings.solver_keywords), "led_radius": diameter / 2, "emitters": emitters}
     return dataclasses.replace(
-        settings, design_leds="points", solver_keywords=tuple(sorted(_solver_keywords(keywords).items()))
+        settings,
+        design_leds="points",
+        given_disks=None,
+        solver_keywords=tuple(sorted(_solver_keywords(keywords).items())),
     )
 
 

@@ -61,6 +61,7 @@ def solve_folder(
     solver_keywords: dict | None = None,
     announce_reuse: bool = True,
     led_model: str = "auto",
+    led_disks: tuple[Sequence[Led] | None, float] | None = None,
 ) -> tuple[Reconstruction | None, str]:
     """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
 
@@ -90,6 +91,7 @@ def solve_folder(
         backend=backend,
         solver_keywords=solver_keywords,
         led_model=led_model,
+        led_disks=led_disks,
     )
     return solve_one(
         Path(folder),
@@ -118,6 +120,7 @@ def solve_presses(
     solver_keywords: dict | None = None,
     wait: bool = False,
     led_model: str = "auto",
+    led_disks: tuple[Sequence[Led] | None, float] | None = None,
 ) -> dict[str, str]:
     """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
 
@@ -136,10 +139,13 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
-    led_model : "auto" (default: the LED file's point LEDs; the capture's own as disks of its design's declared
-        size where points miss them unevenly over its gel, points otherwise, :func:`.settings.for_press`),
-        "points", or "disks" (the LED file's fitted disk emitters, or the capture's own as its design's disks: a
-        view that sees the gel beside the LEDs, the flat pad; ``nlips solve --led-model``)
+    led_model : "auto" (default: the capture's own LEDs as disks of its design's declared size where points miss
+        them unevenly over its gel, points otherwise, :func:`.settings.for_press`; given LEDs by the same choice, as
+        their disks, the LED file's fitted ``emitters`` or ``led_disks``, a file of point LEDs as points), "points",
+        or "disks" (the LED file's fitted disk emitters, or the capture's own as its design's disks: a view that sees
+        the gel beside the LEDs, the flat pad; ``nlips solve --led-model``)
+    led_disks : with ``leds`` a sequence of Led: their disks, (emitters in their order, or None for the LEDs
+        themselves, radius mm), as an LED file's ``emitters``; None: the LEDs are points
     wait : a press another live process of these settings is solving is waited for at once (then its result
         is reused, or the press solved here when that process failed); without it such presses are left to
         that process first and waited for once this run's other presses are done (two runs of one settings on
@@ -173,6 +179,7 @@ def solve_presses(
         backend=backend,
         solver_keywords=solver_keywords,
         led_model=led_model,
+        led_disks=led_disks,
     )
     figure_level(figures)
     folders = [Path(f) for f in folders]

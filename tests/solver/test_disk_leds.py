@@ -190,7 +190,8 @@ def test_solve_led_model_disks_takes_the_led_files_emitters(rim_sphere, tmp_path
 def test_a_whole_frame_solve_past_the_gel_with_point_leds_is_told_of_the_files_disks(rim_sphere, tmp_path, caplog):
     """The rim view's whole frame solved with an LED file's point LEDs bent the depth (above) without a word while
     the file held the disks that fix it: one warning names the flag, once per file; none for a disk solve, an auto
-    ROI, or a file without disks."""
+    ROI, or a file without disks. The default ``--led-model auto`` solves this view with the file's disks (its point
+    LEDs miss the design's disks by 0.014 here, s43-expauto): nothing to tell; ``--led-model points`` is told."""
     import json
 
     from nlipscalib.cli import main
@@ -208,9 +209,10 @@ def test_a_whole_frame_solve_past_the_gel_with_point_leds_is_told_of_the_files_d
         assert main(["--no-progress", "solve", folder, *args, "--no-figures", "--out", str(out)]) == 0
         return [r.getMessage() for r in caplog.records if "--led-model disks" in r.getMessage()]
 
-    (hint,) = hints("--leds", str(with_disks))
+    (hint,) = hints("--leds", str(with_disks), "--led-model", "points")
     assert hint.startswith(f"{folder}: the camera sees past the gel (") and str(with_disks) in hint, hint
     assert hints("--leds", str(with_disks), "--led-model", "disks") == []
+    assert hints("--leds", str(with_disks)) == []  # auto: the file's disks
     assert hints("--leds", str(with_disks), "--roi", "auto") == []
     assert hints("--leds", str(points_only)) == []
 
@@ -296,6 +298,16 @@ def flat_cube(tmp_path_factory):
     return load_press(render_press(scene, press, tmp_path_factory.mktemp("flat") / "cube", seed=3))
 
 
+def _moved(leds, mm: float) -> tuple:
+    """``leds`` each moved ``mm`` along its axis (disks told apart from the point LEDs)."""
+    import dataclasses
+
+    return tuple(
+        dataclasses.replace(led, position=tuple(np.add(led.position, np.multiply(led.direction, mm)).tolist()))
+        for led in leds
+    )
+
+
 def _solve(folder, out, *args: str) -> tuple[dict, np.ndarray]:
     """``nlips solve FOLDER ARGS``: the recorded solver keywords and the solved depth."""
     import json
@@ -326,10 +338,14 @@ def test_the_flat_pads_own_leds_are_solved_as_its_designs_disks_by_default(flat_
     assert not np.array_equal(np.nan_to_num(points_depth), np.nan_to_num(auto_depth))
 
 
-def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tmp_path, caplog, monkeypatch):
+def test_auto_solves_points_below_the_spread_and_an_led_file_by_the_designs_choice(
+    rim_sphere, tmp_path, caplog, monkeypatch
+):
     """The hemisphere's own LEDs (spread 0.0072 in its gel-filling view) stay points: here the rim view's 0.014
     against a level raised above it, which solves the ``--led-model points`` result bit for bit and says why at DEBUG
-    (-v); an LED file's LEDs are points under auto as before; a subset of the capture's own LEDs is judged too."""
+    (-v); an LED file's LEDs follow the design's choice: its fitted disks where auto takes disks, points below the
+    level; a file of point LEDs is solved as points all the same, said in one INFO line (the user's file wins); a
+    subset of the capture's own LEDs is judged too."""
     import json
     import logging
 
@@ -350,11 +366,20 @@ def test_auto_solves_points_below_the_spread_and_with_an_led_file(rim_sphere, tm
     assert "led_radius" not in auto and auto == points
     np.testing.assert_array_equal(auto_depth, points_depth)
     leds = [led.to_dict() for led in rim_sphere.leds]
-    led_file = tmp_path / "leds.json"
-    led_file.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": leds}}), encoding="utf-8")
+    disks = [led.to_dict() for led in _moved(rim_sphere.leds, 0.05)]  # told apart from the points in the record
+    led_file, points_file = tmp_path / "leds.json", tmp_path / "points.json"
+    led_file.write_text(json.dumps({"leds": leds, "emitters": {"radius_mm": RADIUS, "leds": disks}}), encoding="utf-8")
+    points_file.write_text(json.dumps({"leds": leds}), encoding="utf-8")
+    below, _ = _solve(rim_sphere.folder, tmp_path / "below", "--leds", str(led_file))
+    assert "led_radius" not in below  # the design takes points: the file's point LEDs
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.012)
+    caplog.clear()
     with_file, _ = _solve(rim_sphere.folder, tmp_path / "file", "--leds", str(led_file))
-    assert "led_radius" not in with_file
+    assert with_file["led_radius"] == RADIUS and with_file["emitters"] == disks
+    as_points, _ = _solve(rim_sphere.folder, tmp_path / "points_file", "--leds", str(points_file))
+    assert "led_radius" not in as_points
+    (said,) = [r for r in caplog.records if f"{points_file}'s LEDs solved as points, as given" in r.getMessage()]
+    assert said.levelname == "INFO" and "above 1.2 %" in said.getMessage(), said.getMessage()
     subset, _ = _solve(rim_sphere.folder, tmp_path / "subset", "--leds", "1,2,3,4,5,6,7,8")
     assert subset["led_radius"] == RADIUS
 
@@ -371,3 +396,49 @@ def test_calibrate_records_disks_where_auto_solves_disks_and_nothing_where_point
     assert not _solves_disks("points", None, folder)
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
     assert not _solves_disks("auto", None, folder)
+
+
+def test_an_led_file_or_led_values_follow_the_designs_choice_under_auto(rim_sphere, tmp_path, monkeypatch):
+    """Given LEDs under ``--led-model auto`` take the model the design's own LEDs get (s43-expauto): an LED file's
+    fitted disks and LED values' disks (``led_disks``, the experiments' design and calibrated rows) where it takes
+    disks, points below the level and for a file or values without disks; ``nlips calibrate`` records "disks" for such
+    a file. Disks of no size or of another count are one line naming ``led_disks``."""
+    import json
+
+    from nlipscalib.cli.calibration import _solves_disks
+    from nlipscalib.core import tolerances
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.pipeline.settings import for_press, make_settings
+
+    folder, leds = rim_sphere.folder, rim_sphere.leds
+    moved = _moved(leds, 0.05)
+    disk_file, points_file = tmp_path / "disks.json", tmp_path / "points.json"
+    as_dicts = [led.to_dict() for led in leds]
+    disk_file.write_text(
+        json.dumps({"leds": as_dicts, "emitters": {"radius_mm": RADIUS, "leds": [m.to_dict() for m in moved]}}),
+        encoding="utf-8",
+    )
+    points_file.write_text(json.dumps({"leds": as_dicts}), encoding="utf-8")
+
+    def keywords(**given) -> dict:
+        return dict(for_press(folder, make_settings(**given)).solver_keywords)
+
+    disks_of_values = keywords(leds=leds, led_disks=(moved, RADIUS))
+    assert disks_of_values["led_radius"] == RADIUS and disks_of_values["emitters"] == tuple(m.to_dict() for m in moved)
+    themselves = keywords(leds=leds, led_disks=(None, RADIUS))
+    assert themselves["led_radius"] == RADIUS and themselves["emitters"] is None
+    assert keywords(leds=str(disk_file))["led_radius"] == RADIUS
+    assert "led_radius" not in keywords(leds=leds) and "led_radius" not in keywords(leds=str(points_file))
+    assert "led_radius" not in keywords(leds=leds, led_disks=(None, RADIUS), led_model="points")
+    assert _solves_disks("auto", str(disk_file), folder) and not _solves_disks("auto", str(points_file), folder)
+    monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)  # the design's own LEDs go points
+    assert "led_radius" not in keywords(leds=leds, led_disks=(moved, RADIUS))
+    assert "led_radius" not in keywords(leds=str(disk_file))
+    for given, bad, said in (
+        (leds, (None, 0.0), "radius must be a number > 0 mm"),
+        (leds, (moved[:3], RADIUS), "3 disk LEDs given"),
+        (str(disk_file), (None, RADIUS), "none given"),
+    ):
+        with pytest.raises(ConfigError, match="led_disks: ") as caught:
+            make_settings(leds=given, led_disks=bad)
+        assert said in str(caught.value)
