@@ -516,7 +516,7 @@ def test_whole_frame_depth_of_the_contact_is_the_changed_paths(trained_model, tw
 
     The paper's linear net's figures vary with its training draw: at training seeds 0 / 1 / 2 0.022 / 0.036 / 0.086
     and 0.056 / 0.099 / 0.135 on the samples of the change rule 2, 0.054 / 0.040 / 0.046 and 0.074 / 0.104 / 0.119 on
-    rule 3's (s43-mjpg: 32 of its 20,000 samples differ, which redraws the rest's sample), so the bounds hold the
+    rule 3's (s43-mjpg: 20,000 samples, 19,968 under rule 2, which redraws the rest's sample), so the bounds hold the
     largest of those with a margin: a whole-gel solve gone wrong (its level or scale) is off by the dent itself."""
     trained = request.getfixturevalue(trained_model)
     press = load_press(twin_presses / "press_g")
