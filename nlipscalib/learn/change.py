@@ -12,15 +12,15 @@ morphological opening and grown by a margin, then brought back to full resolutio
 The rule runs twice. The first pass, on the frame as it is, gives the frame's own figures (its median difference,
 :attr:`ChangeDetector.mismatch`, and each colour's ratio to the reference on the gel it left unchanged,
 :attr:`ChangeDetector.channel_ratio`, which warn of another exposure and of drifted LEDs). The second, whose pixels
-are the result, runs on the frame with that per-colour gain taken out (held within
-:data:`~nlipscalib.core.tolerances.FRAME_CHANNEL_DRIFT`). Why: a uniform colour shift is no contact, but the robust
-noise estimate takes it for noise, and its size varies with the dome's shading; an 8-bit MJPG stream's ~1 % shift
-(its YCbCr round trip) doubled the threshold with JPEG's own noise, cut 10-30 % of each contact's flat rim and made
-contacts read steeper (benchmarks/RESULTS.md, s41-walkleft and s43-mjpg). The gain comes from the blocks the first
-pass left unchanged, so a large contact does not pull it toward its own colours; the bound keeps a contact over most
-of the gel, which the first pass cannot tell from the rest, from shifting the rest by more than a frame may drift
-unwarned (a larger drift is warned about, and a calibration press's is taken out by
-:func:`~nlipscalib.learn.dataset.contact_pixels`).
+are the result, runs on the frame with its per-colour gain taken out (:func:`rule_gain`). Why: a uniform colour
+shift is no contact, but the robust noise estimate takes it for noise, and its size varies with the dome's shading;
+an 8-bit MJPG stream's ~1 % shift (its YCbCr round trip) doubled the threshold with JPEG's own noise, cut 10-30 % of
+each contact's flat rim and made contacts read steeper (benchmarks/RESULTS.md, s41-walkleft and s43-mjpg). The gain
+comes from the blocks the first pass left unchanged, and again from those of them near its first value, so a large
+contact does not pull it toward its own colours; it is held within
+:data:`~nlipscalib.core.tolerances.FRAME_CHANNEL_DRIFT`, so a contact over most of the gel, which the first pass
+cannot tell from the rest, does not shift the rest by more than a frame may drift unwarned (a larger drift is
+warned about, and a calibration press's is taken out by :func:`~nlipscalib.learn.dataset.contact_pixels`).
 """
 
 from __future__ import annotations
