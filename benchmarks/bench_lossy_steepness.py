@@ -1,9 +1,11 @@
-"""Why an 8-bit lossy video of calibration presses is warned "contact too small or steep" where their 16-bit PNGs
+"""Why an 8-bit lossy video of calibration presses was warned "contact too small or steep" where their 16-bit PNGs
 are not: each press's contact measured (``learn.resolution.measure_contact``, as ``nlips infer`` judges it) on its
 16-bit tri-colour PNG, the same PNG cut to 8 bits (lossless), the video's frame, the video's frame with its
-per-colour gain over the reference taken out first (``ChangeDetector.channel_ratio``: what a gain-aware change rule
-would see), and the video's normals on the PNG's region (whether the normals or the region differ). Also the change
-rule's noise figures (median and MAD of the smoothed difference, over the reference's level).
+per-colour gain over the reference taken out first (``ChangeDetector.channel_ratio``) for the network too, and the
+video's normals on the PNG's region (whether the normals or the region differ); each cell ends with the change
+rule's region in pixels. Also the change rule's noise figures (median and MAD of the smoothed difference, over the
+reference's level). Since the change rule 3 (s43-mjpg) the rule itself takes the gain out before it thresholds: the
+"video" column is then what ``nlips infer`` sees, and runs of the checkout before it (rule 2) give the old figures.
 
 Usage: python benchmarks/bench_lossy_steepness.py MODEL.pt VIDEO DATASET [COUNT] (--help: what each is).
 """
@@ -49,7 +51,8 @@ def noise(predictor: Predictor, linear: np.ndarray) -> tuple[float, float]:
 
 def measured(predictor: Predictor, region: np.ndarray, normals: np.ndarray) -> str:
     found = measure_contact(region, normals, predictor.ref_normals)
-    return "-" if found is None else f"{found[0]:.1f} px {found[1]:.1f} deg {found[1] / found[0]:.3f}"
+    figure = "-" if found is None else f"{found[0]:.1f} px {found[1]:.1f} deg {found[1] / found[0]:.3f}"
+    return f"{figure} ({int(region.sum())})"
 
 
 def main(model: str, video: str, dataset: str, count: int = 10) -> None:
@@ -57,6 +60,7 @@ def main(model: str, video: str, dataset: str, count: int = 10) -> None:
     frames = video_frames(video, count)
     print(f"change rule: threshold median + {CHANGE_NOISE_SIGMAS} MAD")
     print("press | PNG 16-bit | PNG as 8-bit | video | video, gain taken out | video normals on PNG region")
+    print("(each: diameter, 75th-percentile tilt, deg/px of the contact; in brackets the change rule's pixels)")
     for i, stored in enumerate(frames, start=1):
         png = cv2.imread(f"{dataset}/press_{i:04d}/tricolor.png", cv2.IMREAD_UNCHANGED)
         lossless = predictor.linear(to_stored(png)[0])

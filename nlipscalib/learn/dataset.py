@@ -529,6 +529,8 @@ def build_dataset(
         ref = reference_arrays(ref_press)
         ref_tricolor = press_tricolor_verdict(ref_press).record()
         build = _Build(out, cfg, result_dir, sensor_of(ref_press), ref, failed=failed, keep_tricolor=keep_tricolor)
+        if older := _older_rules(out):  # every shard's stamp holds the rules: each is made again, said once
+            log.info("%s: %s: each press's samples are made again", out / INDEX_FILE, older)
         write_shard(out / SENSOR_FILE, build.ref)
         judged = judged or {}
         entries = build.entries([f for f in folders if f.name not in judged], progress)
@@ -925,6 +927,31 @@ def arrays_digest(arrays: dict) -> str:
     return digest.hexdigest()
 
 
+def _older_rules(out: Path) -> str | None:
+    """Why the dataset index.json in ``out`` records samples made under other sampling rules than today's
+    (:data:`SAMPLE_RULES`), in words ("made under other sampling rules (rule 2, now 3)"); None when there is no
+    readable index.json or it records today's rules."""
+    try:
+        index = json.loads((out / INDEX_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(index, dict):
+        return None
+    rules = index.get("sample_rules")
+    return rules_changed(rules if isinstance(rules, dict) else None)
+
+
+def rules_changed(was: dict | None) -> str | None:
+    """How the sampling rules ``was`` (an index.json's ``sample_rules``; None: it records none) differ from today's
+    :data:`SAMPLE_RULES`, in words; None when they are today's."""
+    if was == SAMPLE_RULES:
+        return None
+    if was is None:
+        return "records no sampling rules: made by an nlipscalib before 2026-12-06"
+    changed = ", ".join(f"{k} {was.get(k)}, now {v}" for k, v in SAMPLE_RULES.items() if was.get(k) != v)
+    return f"made under other sampling rules ({changed})"
+
+
 def _old_entries(out: Path) -> dict:
     try:
         return {e["name"]: e for e in json.loads((out / INDEX_FILE).read_text(encoding="utf-8"))["presses"]}
@@ -1196,18 +1223,10 @@ class CalibrationDataset:
         `nlips train` on a dataset an older nlipscalib made read its samples without a word: one made before
         :data:`FRAME_GAIN_RULE` kept almost none of the contact samples of a press brighter or dimmer than the
         reference."""
-        if self.sample_rules == SAMPLE_RULES:
+        why = rules_changed(self.sample_rules)
+        if why is None:
             return None
         path = self.folder / INDEX_FILE
-        if self.sample_rules is None:
-            why = "records no sampling rules: made by an nlipscalib before 2026-12-06"
-        else:
-            was = self.sample_rules
-            why = (
-                "made under other sampling rules ("
-                + ", ".join(f"{k} {was.get(k)}, now {v}" for k, v in SAMPLE_RULES.items() if was.get(k) != v)
-                + ")"
-            )
         older_gain = self.sample_rules is None or self.sample_rules.get("frame_gain") != FRAME_GAIN_RULE
         gain = " (before 2026-12-06 a press brighter or dimmer than the reference kept almost no contact samples)"
         return (

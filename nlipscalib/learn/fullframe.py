@@ -288,16 +288,20 @@ class _ChangeRule:
     """:class:`.change.ChangeDetector` on a torch device, operation for operation: 2x2-block means, the signed
     difference from the reference box-averaged (replicated border), summed over colours, compared with the
     median and the median absolute deviation over the gel's sampled blocks and with the reference's level, an
-    opening and growth with the 3x3 cross (zeros outside), back to full resolution. Also its whole-frame figure
+    opening and growth with the 3x3 cross (zeros outside); twice, the second time with the first pass's per-colour
+    gain taken out (:func:`.change.rule_gain`, here on the device: the same picks, the same bound), back to full
+    resolution. Also its whole-frame figure
     (:attr:`.change.ChangeDetector.mismatch`) and the sampled blocks its per-colour ratio is taken from
-    (:func:`.change.channel_ratio`, on the host)."""
+    (:func:`.change.channel_ratio`, on the host, the first pass's: the frame's own)."""
 
     def __init__(self, reference: np.ndarray, valid: np.ndarray, device: torch.device):
-        from ..core.tolerances import CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS
+        from ..core.robust_scale import MAD_TO_SIGMA
+        from ..core.tolerances import CHANGE_GAIN_TRIM_SIGMAS, CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS, FRAME_CHANNEL_DRIFT
         from .change import NOISE_STRIDE, SMOOTH_BLOCKS
 
         torch = _torch()
-        self.smooth, self.sigmas = SMOOTH_BLOCKS, CHANGE_NOISE_SIGMAS
+        self.smooth, self.sigmas, self.drift = SMOOTH_BLOCKS, CHANGE_NOISE_SIGMAS, FRAME_CHANNEL_DRIFT
+        self.trim = float(np.float32(CHANGE_GAIN_TRIM_SIGMAS * MAD_TO_SIGMA))  # as learn.change's float32 product
         self.valid = torch.as_tensor(valid, device=device)
         h2, w2 = valid.shape[0] // 2, valid.shape[1] // 2
         self.crop = (slice(0, 2 * h2), slice(0, 2 * w2))
@@ -308,7 +312,8 @@ class _ChangeRule:
         self.sample = torch.nonzero(self.on.flatten()).flatten()[::NOISE_STRIDE]
         level = self.ref_blocks.sum(-1).flatten()[self.sample]
         self.level = float(_median(level)) if len(level) else 0.0
-        self.ref_sample = self.ref_blocks.reshape(-1, 3)[self.sample].cpu().numpy()
+        self.ref_sample_device = self.ref_blocks.reshape(-1, 3)[self.sample]
+        self.ref_sample = self.ref_sample_device.cpu().numpy()
 
     def _blocks(self, image: torch.Tensor):
         F = _torch().nn.functional
@@ -318,14 +323,30 @@ class _ChangeRule:
         """(changed (H, W) bool, mismatch 0-d, sampled (N, 4)) tensors for ``frame`` ((H, W, 3) linear); sampled:
         the frame's block means minus the reference's at the sampled gel blocks, then 1 where the rule found a change
         (one small download for :meth:`channels`, which takes the ratio by the CPU path's own code)."""
+        torch = _torch()
+        if not len(self.sample) or self.level <= 0:
+            nothing = torch.zeros((0, 4), device=frame.device)
+            return torch.zeros_like(self.valid), torch.zeros((), device=frame.device), nothing
+        blocks = self._blocks(frame)
+        signed = torch.where(self.on[..., None], blocks - self.ref_blocks, 0.0)
+        hit, median = self._hits(signed)
+        samples = signed.reshape(-1, 3)[self.sample]
+        rest = ~hit.flatten()[self.sample]
+        # the second pass: the frame's colours in the reference's gain (learn.change's module docstring)
+        inverse = (1 / self._gain(samples, rest)).to(torch.float32)
+        second, _ = self._hits(torch.where(self.on[..., None], blocks * inverse - self.ref_blocks, 0.0))
+        changed = torch.zeros_like(self.valid)
+        changed[self.crop] = second.repeat_interleave(2, 0).repeat_interleave(2, 1)
+        sampled = torch.cat([samples, (~rest)[:, None].to(samples.dtype)], 1)
+        return changed & self.valid, median / self.level, sampled
+
+    def _hits(self, signed: torch.Tensor):
+        """(changed blocks (H/2, W/2) bool, median 0-d) of a frame whose block means differ from the reference's by
+        ``signed`` (0 off the gel): :meth:`.change.ChangeDetector._hits`."""
         from .change import DILATE_BLOCKS
 
         torch = _torch()
         F = torch.nn.functional
-        if not len(self.sample) or self.level <= 0:
-            nothing = torch.zeros((0, 4), device=frame.device)
-            return torch.zeros_like(self.valid), torch.zeros((), device=frame.device), nothing
-        signed = torch.where(self.on[..., None], self._blocks(frame) - self.ref_blocks, 0.0)
         r = self.smooth // 2
         padded = F.pad(signed.permute(2, 0, 1)[None], (r, r, r, r), mode="replicate")
         diff = F.avg_pool2d(padded, self.smooth, stride=1)[0].abs().sum(0)
@@ -337,11 +358,23 @@ class _ChangeRule:
         hit = _cross(_cross(hit, torch.amin), torch.amax)  # opening: isolated blocks are noise
         for _ in range(DILATE_BLOCKS):
             hit = _cross(hit, torch.amax)
-        changed = torch.zeros_like(self.valid)
-        changed[self.crop] = hit.repeat_interleave(2, 0).repeat_interleave(2, 1)
-        blocks = signed.reshape(-1, 3)[self.sample]
-        sampled = torch.cat([blocks, hit.flatten()[self.sample, None].to(blocks.dtype)], 1)
-        return changed & self.valid, median / self.level, sampled
+        return hit, median
+
+    def _gain(self, samples: torch.Tensor, rest: torch.Tensor):
+        """(3,) float64 -- :func:`.change.rule_gain` on the device: each colour's middle ratio of the frame's block
+        means over the reference's on the unchanged blocks, again on those within the trim of it in every colour, 1 +
+        that held within 1 +- FRAME_CHANNEL_DRIFT; 1s when every sampled block changed. The same element picks
+        (index n // 2 of the n counted, np.partition's) in the same float32 arithmetic; fixed shapes (the blocks not
+        counted sorted last as +inf), so a CUDA graph records it."""
+        torch = _torch()
+        ratio = samples / self.ref_sample_device.clamp_min(1e-12)
+        centre = _middle_of(ratio, rest)
+        off = (ratio - centre).abs()
+        inside = rest & (off <= _middle_of(off, rest) * self.trim).all(1)
+        again = torch.where(inside.any(), _middle_of(ratio, inside), centre)  # none inside: the first median
+        gain = 1.0 + again.to(torch.float64)
+        gain = torch.where(torch.isfinite(gain) & (rest.sum() > 0), gain, 1.0)
+        return gain.clamp(1 - self.drift, 1 + self.drift)
 
     def channels(self, sampled: np.ndarray) -> tuple[float, float, float]:
         """Each colour's median over the reference's on the unchanged gel (:func:`.change.channel_ratio`) from
@@ -357,6 +390,15 @@ def _median(x: torch.Tensor):
     torch = _torch()
     n = len(x)
     return torch.sort(x).values[(n - 1) // 2 : n // 2 + 1].mean()
+
+
+def _middle_of(values: torch.Tensor, counted: torch.Tensor):
+    """(3,) -- each column of ``values`` ((N, 3)) at index n // 2 of its ``counted`` ((N,) bool) rows sorted, n their
+    count (:func:`.change._middle`'s pick; the last row's when none is counted)."""
+    torch = _torch()
+    ordered = torch.where(counted[:, None], values, torch.inf).sort(0).values
+    pick = (counted.sum() // 2).clamp_max(len(counted) - 1)
+    return ordered.gather(0, pick.expand(1, values.shape[1]))[0]
 
 
 def _cross(mask: torch.Tensor, reduce: Callable[..., torch.Tensor]):

