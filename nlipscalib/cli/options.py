@@ -41,12 +41,13 @@ def add_led_model(parser: argparse.ArgumentParser) -> None:
         "--led-model",
         choices=("auto", "points", "disks"),
         default="auto",
-        help="how the LEDs are modelled. auto (default): --leds FILE's as points; without it the capture's own LEDs "
-        "as disks of the size its design declares where points would miss their light unevenly over the gel (the "
-        "flat pad, oblate and capsule designs: the flat pad's cube press 0.89 -> 0.24 deg), as points otherwise "
-        "(the hemisphere, fingertip); one INFO line says so where it picks disks (-v: why points). points: always "
-        "points. disks: --leds FILE's fitted disks (~1.1x the solve's CPU; for a view that sees the gel beside the "
-        "LEDs, where points misplace the whole gel's depth by up to 0.1 mm), or without it the design's disks",
+        help="how the LEDs are modelled. auto (default): --leds FILE's as points; without it the capture's own LEDs as "
+        "disks of the size its design declares where points would miss their light unevenly over the gel (the flat "
+        "pad, oblate, capsule and fingertip designs: the flat pad's cube press 0.89 -> 0.24 deg, the fingertip's 1.34"
+        " -> 1.23 deg on average), as points otherwise (the hemisphere); one INFO line says so where it picks disks "
+        "(-v: why points). points: always points. disks: --leds FILE's fitted disks (~1.1x the solve's CPU; for a "
+        "view that sees the gel beside the LEDs, where points misplace the whole gel's depth by up to 0.1 mm), or "
+        "without it the design's disks",
     )
 
 
