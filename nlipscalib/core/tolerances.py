@@ -316,16 +316,19 @@ cup about 3.6 mm across (the twin's default ``[led_package]``), whose light the 
 the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wall at the image border (every press
 with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits
 against 2,464; s27-shapes2). Not read from the capture: the press format does not describe the LED package."""
-POINT_LED_SPREAD_FOR_DISKS = 0.012
+POINT_LED_SPREAD_FOR_DISKS = 0.008
 """A solve with the capture's own LEDs (no ``--leds`` file) under ``--led-model auto`` (the default), on a design that
 declares its LEDs' size (``leds.emitter_diameter``): where the point LEDs miss the disks' light over the gel by more
 than this spread (:func:`nlipscalib.solver.point_led_error.point_led_spread`, the std of log(disk / point)), the LEDs
 are solved as those disks, points otherwise (:func:`nlipscalib.pipeline.led_choice.auto_led_diameter`).
 Why: the flat pad (0.0145) and the oblate dome (0.0135) lose most to points: the twin's flat cube pressed 1 mm at
 polar 25 deg, contact AAE 0.889 deg with the design's point LEDs, 0.238 as disks (0.262 with LEDs calibrated as
-points); oblate 0.437 -> 0.298. The hemisphere (0.0072) is left alone: there the disks gain 0.012 deg on its cube
-press but lose 0.017-0.041 on its sphere (fingertip 0.0096: 0.663 -> 0.602 on a cube; s42-flatauto,
-docs/experiments/RESULTS.md)."""
+points); oblate 0.437 -> 0.298 (s42-flatauto). Since the interreflection gather's visibility test the fingertip
+(0.0096) gains as disks on every press measured, 13 of 13, by 0.065-0.31 deg (contact AAE 1.343 -> 1.233 deg, depth
+24.7 -> 17.0 um rms; s43-autodisks2), so the level sits below it (0.012 before) and above the hemisphere's (0.0072;
+its 12 LEDs alone 0.0067-0.0073, the fingertip's 0.0076-0.0107), which stays on points: there the disks gain on
+spheres, cubes and cylinders (16 presses, 0.478 -> 0.439 deg, the worst +0.004) but lose on every coin, 0.028-0.074
+deg (whole frame up to 0.145; docs/experiments/RESULTS.md)."""
 POINT_LED_SPREAD_LIT = 0.05
 """:func:`nlipscalib.solver.point_led_error.point_led_spread` uses the gel an LED lights above this share of its median
 shading: at grazing light the ratio of two near-zero shadings is noise, not the model's error."""

@@ -30,7 +30,7 @@ def auto_led_diameter(
     """The diameter (mm) of disks a ``--led-model auto`` solve of ``folder`` with its own LEDs takes them as, or 0
     for points: the design's declared ``leds.emitter_diameter`` where the point LEDs miss those disks' light over the
     undeformed gel by a spread above :data:`~nlipscalib.core.tolerances.POINT_LED_SPREAD_FOR_DISKS` (the shipped
-    flat pad, oblate and capsule designs; not the hemisphere nor the fingertip). Says once per design which model and
+    flat pad, oblate, capsule and fingertip designs; not the hemisphere). Says once per design which model and
     why: INFO for disks, DEBUG for points (the model solves always took, nothing new to say without -v).
 
     Parameters
