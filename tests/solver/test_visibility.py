@@ -112,3 +112,29 @@ def test_a_patch_off_the_grid_is_tested_on_the_grid_only():
     receiver = np.array([[-2.0, 0.0, 99.0]])  # low on the left slope, at row 6, column 16: the ridge to its right
     hidden = radiosity._hidden(receiver, np.array([[6.0, 16.0]], np.float32), far, occluders)
     assert hidden.tolist() == [[False, True]]
+
+
+def test_the_pairs_picked_by_among_get_the_whole_tests_answers():
+    """``among`` picks the pairs to test before the box's clipping: they come out as in the test of every pair and the
+    others seen, with the box inside the grid (the dent: samples not clipped to it) and past its edge (the ridge runs
+    the grid's length: samples clipped)."""
+    dent = _dome(dent=1.0)
+    ridge = _valley()
+    rng = np.random.default_rng(7)
+    for s, inside in ((dent, True), (ridge, False)):
+        occluders = radiosity.Occluders.of(s["points"], s["area"])
+        h2, w2 = occluders.points.shape[:2]
+        box = occluders.box
+        assert (box[0] >= 0 and box[1] <= h2 - 1 and box[2] >= 0 and box[3] <= w2 - 1) == inside
+        everywhere = np.ones(s["area"].shape, bool)
+        cells = radiosity.patch_cells(everywhere)
+        emitters = radiosity._Emitters.of(
+            s["points"].reshape(-1, 3), s["normals"].reshape(-1, 3), s["area"].ravel(), cells
+        )
+        receivers = rng.choice(len(cells), 60, replace=False)
+        pr = s["points"].reshape(-1, 3)[receivers]
+        whole = radiosity._hidden(pr, cells[receivers], emitters, occluders)
+        assert whole.mean() > 0.01  # the premise: the surface hides pairs
+        among = rng.random(whole.shape) < 0.5
+        picked = radiosity._hidden(pr, cells[receivers], emitters, occluders, among=among)
+        np.testing.assert_array_equal(picked, whole & among)
