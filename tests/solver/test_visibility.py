@@ -138,3 +138,27 @@ def test_the_pairs_picked_by_among_get_the_whole_tests_answers():
         among = rng.random(whole.shape) < 0.5
         picked = radiosity._hidden(pr, cells[receivers], emitters, occluders, among=among)
         np.testing.assert_array_equal(picked, whole & among)
+
+
+def test_a_pair_left_out_by_the_outcodes_misses_the_box():
+    """The ends' outcodes leave out a pair only where the box's clipping finds its line missing the box, also for
+    ends a hair beyond a side (within the margin: kept) and for ends off the grid."""
+    box = (5, 20, 8, 30)
+    rng = np.random.default_rng(11)
+    near_sides = np.array(box, np.float32) - 1 + rng.choice([-0.02, -0.005, 0.005, 0.02], 4)  # unbordered
+    cells = np.concatenate(
+        [
+            rng.uniform(-40, 70, (400, 2)).astype(np.float32),
+            np.stack([np.repeat(near_sides[:2], 20), rng.uniform(0, 40, 40)], 1).astype(np.float32),
+            np.stack([rng.uniform(0, 30, 40), np.repeat(near_sides[2:], 20)], 1).astype(np.float32),
+        ]
+    )
+    codes = radiosity._outcode(cells, box)
+    left_out = np.bitwise_and.outer(codes, codes) != 0
+    assert 0.2 < left_out.mean() < 0.8  # the premise: both kinds of pairs
+    r0, c0 = cells[:, :1] + np.float32(1), cells[:, 1:] + np.float32(1)
+    dr = cells[None, :, 0] + np.float32(1) - r0
+    dc = cells[None, :, 1] + np.float32(1) - c0
+    t0, t1 = radiosity._clip(r0, c0, dr, dc, box)
+    assert not (left_out & (t1 > t0)).any()
+    assert (~left_out & (t1 <= t0)).any()  # the outcodes leave some misses to the clipping
