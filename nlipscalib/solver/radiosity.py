@@ -477,42 +477,106 @@ def _hidden(
     hidden = np.zeros((len(pr), len(emitters.points)), bool)
     if occluders.box is None or not hidden.size:
         return hidden
-    r0, c0 = cells[:, :1] + np.float32(1), cells[:, 1:] + np.float32(1)  # on the bordered grid
-    dr = emitters.cells[None, :, 0] + np.float32(1) - r0
-    dc = emitters.cells[None, :, 1] + np.float32(1) - c0
+    # the pairs to test first, then every step per pair (the same float32 operations as on the whole (m, k) array):
+    # a pair whose two ends lie beyond the same side of the box misses it, and its line is not clipped
+    # (benchmarks/RESULTS.md, s43-viscost)
+    ends_apart = np.bitwise_and.outer(_outcode(cells, occluders.box), _outcode(emitters.cells, occluders.box)) == 0
+    i, j = np.nonzero(ends_apart if among is None else ends_apart & among)
+    r0 = np.take(cells[:, 0] + np.float32(1), i)  # on the bordered grid
+    c0 = np.take(cells[:, 1] + np.float32(1), i)
+    dr = np.take(emitters.cells[:, 0] + np.float32(1), j) - r0
+    dc = np.take(emitters.cells[:, 1] + np.float32(1), j) - c0
     t0, t1 = _clip(r0, c0, dr, dc, occluders.box)
     cross = t1 > t0  # the pairs whose line crosses the box
-    i, j = np.nonzero(cross if among is None else cross & among)
+    if not cross.all():
+        i, j, r0, c0, dr, dc, t0, t1 = (a[cross] for a in (i, j, r0, c0, dr, dc, t0, t1))
     if not len(i):
         return hidden
-    t0, span = t0[i, j], t1[i, j] - t0[i, j]
-    r0, c0, dr, dc = np.take(r0[:, 0], i), np.take(c0[:, 0], i), dr[i, j], dc[i, j]
-    # one coordinate at a time (np.take of 1-D arrays): a third of the time of (n, 3) rows and einsum
+    span = t1 - t0
+    # one coordinate at a time (np.take of 1-D arrays): a third of the time of (n, 3) rows and einsum; each step
+    # below is the float32 operation of the plain expression in its comment, in its order, written in place
     p = [np.take(np.ascontiguousarray(pr[:, c], np.float32), i) for c in range(3)]
-    q = [np.take(np.ascontiguousarray(emitters.points[:, c], np.float32), j) for c in range(3)]
-    u = [b - a for a, b in zip(p, q)]
-    along = (p[0] * u[0] + p[1] * u[1] + p[2] * u[2]) / np.maximum(u[0] * u[0] + u[1] * u[1] + u[2] * u[2], 1e-12)
-    toward_cam = [along * b - a for a, b in zip(p, u)]  # from the segment's line to the camera, perpendicular to it
-    norm = np.sqrt(toward_cam[0] ** 2 + toward_cam[1] ** 2 + toward_cam[2] ** 2)
+    u = [np.take(np.ascontiguousarray(emitters.points[:, c], np.float32), j) for c in range(3)]
+    for c in range(3):
+        u[c] -= p[c]  # q - p
+    along, length = _dot(p, u), _dot(u, u)
+    np.maximum(length, np.float32(1e-12), out=length)
+    along /= length  # (p . u) / max(u . u, 1e-12)
+    toward_cam = u  # from the segment's line to the camera, perpendicular to it: along u - p
+    for c in range(3):
+        toward_cam[c] *= along
+        toward_cam[c] -= p[c]
+    norm = _dot(toward_cam, toward_cam)
+    np.sqrt(norm, out=norm)
     # a patch s hides the pair where s . toward_cam exceeds p . toward_cam by the margin
-    reach = p[0] * toward_cam[0] + p[1] * toward_cam[1] + p[2] * toward_cam[2]
-    reach += np.float32(tolerances.VISIBILITY_HEIGHT_MM) * norm
+    reach = _dot(p, toward_cam)
+    norm *= np.float32(tolerances.VISIBILITY_HEIGHT_MM)
+    reach += norm
     h2, w2 = occluders.points.shape[:2]
     grid = [np.ascontiguousarray(occluders.points[..., c]).ravel() for c in range(3)]
-    seen_behind = np.zeros(len(i), bool)
+    # a box on the grid keeps every sample on it (a sample strays from the box by float32 rounding only, far less
+    # than the half patch that would move its nearest patch): clipping it to the grid then changes nothing
+    on_grid = occluders.box[0] >= 0 and occluders.box[1] <= h2 - 1 and occluders.box[2] >= 0
+    on_grid = on_grid and occluders.box[3] <= w2 - 1
+    n = len(i)
+    seen_behind = np.zeros(n, bool)
+    # the loop's arrays made once and written in place (out=), not made afresh at every step
+    t, at, height, part = (np.empty(n, np.float32) for _ in range(4))
+    row, col, above = np.empty(n, np.intp), np.empty(n, np.intp), np.empty(n, bool)  # intp: take converts no index
     r0 += np.float32(0.5)  # + 0.5 and cut toward zero: the nearest patch (the grid's rows and columns are >= 0)
     c0 += np.float32(0.5)
     for f in (np.arange(VISIBILITY_SAMPLES, dtype=np.float32) + np.float32(0.5)) / np.float32(VISIBILITY_SAMPLES):
-        t = t0 + f * span
-        row = np.clip(r0 + t * dr, 0, h2 - 0.5).astype(np.int32)
+        np.multiply(span, f, out=t)
+        t += t0  # t0 + f * span
+        for start, step, size, index in ((r0, dr, h2, row), (c0, dc, w2, col)):
+            np.multiply(t, step, out=at)
+            at += start  # start + t * step
+            if not on_grid:
+                np.clip(at, 0, size - 0.5, out=at)
+            index[...] = at  # cut toward zero, as astype
         row *= w2
-        row += np.clip(c0 + t * dc, 0, w2 - 0.5).astype(np.int32)
-        height = np.take(grid[0], row) * toward_cam[0]
-        height += np.take(grid[1], row) * toward_cam[1]
-        height += np.take(grid[2], row) * toward_cam[2]
-        seen_behind |= height > reach  # NaN (no surface) compares False
-    hidden[i, j] = seen_behind
+        row += col
+        np.take(grid[0], row, out=height, mode="clip")  # every index is on the grid: "clip" is not buffered
+        height *= toward_cam[0]
+        for c in (1, 2):
+            np.take(grid[c], row, out=part, mode="clip")
+            part *= toward_cam[c]
+            height += part
+        np.greater(height, reach, out=above)  # NaN (no surface) compares False
+        seen_behind |= above
+    hidden[i[seen_behind], j[seen_behind]] = True
     return hidden
+
+
+def _outcode(cells: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray:
+    """(n,) uint8 -- which sides of ``box`` (bordered grid) the (n, 2) ``cells`` (unbordered grid, float32) lie
+    beyond, one bit a side (Cohen & Sutherland's outcodes): a line whose two ends share a bit misses the box.
+
+    A side's bit is set VISIBILITY_OUTCODE_MARGIN beyond it: such a line misses the box by that much, and
+    :func:`_clip`'s float32 arithmetic finds it missing too (rounding errs by ~1e-5 of a patch), so the pairs left
+    out are some of those it would leave out, never others."""
+    r, c = cells[:, 0] + np.float32(1), cells[:, 1] + np.float32(1)
+    m = VISIBILITY_OUTCODE_MARGIN
+    code = (r < box[0] - m).astype(np.uint8)
+    code |= (r > box[1] + m).astype(np.uint8) << 1
+    code |= (c < box[2] - m).astype(np.uint8) << 2
+    code |= (c > box[3] + m).astype(np.uint8) << 3
+    return code
+
+
+VISIBILITY_OUTCODE_MARGIN = 0.01
+"""Patches beyond a side of :attr:`Occluders.box` at which :func:`_outcode` sets that side's bit."""
+
+
+def _dot(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
+    """(n,) float32 -- ``a[0] * b[0] + a[1] * b[1] + a[2] * b[2]`` of three (n,) float32 coordinates each, summed
+    in that order (the same bits), with one array made for the products."""
+    out = a[0] * b[0]
+    part = np.empty_like(out)
+    for c in (1, 2):
+        np.multiply(a[c], b[c], out=part)
+        out += part
+    return out
 
 
 def _clip(

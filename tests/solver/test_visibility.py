@@ -112,3 +112,53 @@ def test_a_patch_off_the_grid_is_tested_on_the_grid_only():
     receiver = np.array([[-2.0, 0.0, 99.0]])  # low on the left slope, at row 6, column 16: the ridge to its right
     hidden = radiosity._hidden(receiver, np.array([[6.0, 16.0]], np.float32), far, occluders)
     assert hidden.tolist() == [[False, True]]
+
+
+def test_the_pairs_picked_by_among_get_the_whole_tests_answers():
+    """``among`` picks the pairs to test before the box's clipping: they come out as in the test of every pair and the
+    others seen, with the box inside the grid (the dent: samples not clipped to it) and past its edge (the ridge runs
+    the grid's length: samples clipped)."""
+    dent = _dome(dent=1.0)
+    ridge = _valley()
+    rng = np.random.default_rng(7)
+    for s, inside in ((dent, True), (ridge, False)):
+        occluders = radiosity.Occluders.of(s["points"], s["area"])
+        h2, w2 = occluders.points.shape[:2]
+        box = occluders.box
+        assert (box[0] >= 0 and box[1] <= h2 - 1 and box[2] >= 0 and box[3] <= w2 - 1) == inside
+        everywhere = np.ones(s["area"].shape, bool)
+        cells = radiosity.patch_cells(everywhere)
+        emitters = radiosity._Emitters.of(
+            s["points"].reshape(-1, 3), s["normals"].reshape(-1, 3), s["area"].ravel(), cells
+        )
+        receivers = rng.choice(len(cells), 60, replace=False)
+        pr = s["points"].reshape(-1, 3)[receivers]
+        whole = radiosity._hidden(pr, cells[receivers], emitters, occluders)
+        assert whole.mean() > 0.01  # the premise: the surface hides pairs
+        among = rng.random(whole.shape) < 0.5
+        picked = radiosity._hidden(pr, cells[receivers], emitters, occluders, among=among)
+        np.testing.assert_array_equal(picked, whole & among)
+
+
+def test_a_pair_left_out_by_the_outcodes_misses_the_box():
+    """The ends' outcodes leave out a pair only where the box's clipping finds its line missing the box, also for
+    ends a hair beyond a side (within the margin: kept) and for ends off the grid."""
+    box = (5, 20, 8, 30)
+    rng = np.random.default_rng(11)
+    near_sides = np.array(box, np.float32) - 1 + rng.choice([-0.02, -0.005, 0.005, 0.02], 4)  # unbordered
+    cells = np.concatenate(
+        [
+            rng.uniform(-40, 70, (400, 2)).astype(np.float32),
+            np.stack([np.repeat(near_sides[:2], 20), rng.uniform(0, 40, 40)], 1).astype(np.float32),
+            np.stack([rng.uniform(0, 30, 40), np.repeat(near_sides[2:], 20)], 1).astype(np.float32),
+        ]
+    )
+    codes = radiosity._outcode(cells, box)
+    left_out = np.bitwise_and.outer(codes, codes) != 0
+    assert 0.2 < left_out.mean() < 0.8  # the premise: both kinds of pairs
+    r0, c0 = cells[:, :1] + np.float32(1), cells[:, 1:] + np.float32(1)
+    dr = cells[None, :, 0] + np.float32(1) - r0
+    dc = cells[None, :, 1] + np.float32(1) - c0
+    t0, t1 = radiosity._clip(r0, c0, dr, dc, box)
+    assert not (left_out & (t1 > t0)).any()
+    assert (~left_out & (t1 <= t0)).any()  # the outcodes leave some misses to the clipping
