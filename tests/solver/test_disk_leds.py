@@ -355,7 +355,6 @@ def test_auto_solves_points_below_the_spread_and_an_led_file_by_the_designs_choi
     from nlipscalib.pipeline.led_choice import auto_led_diameter
 
     caplog.set_level(logging.INFO)
-    level = tolerances.POINT_LED_SPREAD_FOR_DISKS
     monkeypatch.setattr(tolerances, "POINT_LED_SPREAD_FOR_DISKS", 0.02)
     auto, auto_depth = _solve(rim_sphere.folder, tmp_path / "auto")
     assert not [r for r in caplog.records if "--led-model auto" in r.getMessage()]  # points as ever: nothing new
